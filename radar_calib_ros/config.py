@@ -1,0 +1,397 @@
+"""One typed, validated configuration for the node and the offline tool.
+
+Every parameter of CONTRACT.md and every threshold of the method is a field of a frozen
+per-section dataclass below, with its default, a one-line description and its constraint
+beside it (the scikit-learn ``_parameter_constraints`` lesson: validate once, at the edge,
+and let the stages trust their config). ``CalibConfig.from_mapping`` is the only way in:
+the CLI feeds it a parameters file, the node its declared ROS parameters, and
+``config/calibrator.yaml`` is generated from (and tested against) these defaults.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from radar_calib_ros.errors import ConfigError
+
+
+def _p(default: Any, doc: str, *, lo: float | None = None, hi: float | None = None,
+       choices: tuple[str, ...] | None = None, read_only: bool = False) -> Any:
+    """Declare a parameter field: default, description and constraint side by side."""
+    meta = {'doc': doc, 'lo': lo, 'hi': hi, 'choices': choices, 'read_only': read_only}
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RadarConfig:
+    velocity_field: str = _p('', 'name of the radial-velocity field; empty = find by name')
+    frame_id: str = _p('radar', 'child frame id of the published calibration')
+    velocity_sign: float = _p(
+        1.0, 'sign that makes v_r positive for targets moving away (-1 if the radar '
+        'reports approach as positive)', choices=None, lo=-1.0, hi=1.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WorldConfig:
+    epsg: int = _p(0, 'EPSG code of the UTM world frame; 0 = zone of the first vehicle fix',
+                   lo=0, hi=99999)
+    frame_id: str = _p('utm', 'frame id of the world (parent) frame')
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SyncConfig:
+    time_offset: float = _p(0.0, 'seconds added to radar stamps before matching to poses',
+                            lo=-10.0, hi=10.0)
+    estimate_time_offset: bool = _p(
+        True, 'estimate the remaining radar/GNSS clock offset in the final refinement')
+    max_time_offset: float = _p(0.25, 'largest clock offset searched for [s]', lo=0.0, hi=2.0)
+    max_pose_gap: float = _p(0.5, 'longest pose gap interpolated across [s]', lo=0.02, hi=10.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VehicleConfig:
+    length: float = _p(4.9, 'calibration vehicle length [m]', lo=1.0, hi=25.0)
+    width: float = _p(1.9, 'calibration vehicle width [m]', lo=0.5, hi=4.0)
+    height: float = _p(1.5, 'calibration vehicle height [m]', lo=0.5, hi=5.0)
+    rear_overhang: float = _p(1.0, 'reference point to rear bumper, along -x [m]',
+                              lo=-5.0, hi=25.0)
+    ref_height: float = _p(0.35, 'reference point above the ground [m]', lo=-1.0, hi=5.0)
+    odom_is_utm: bool = _p(False, 'Odometry position is UTM (used only without NavSatFix)')
+    min_heading_speed: float = _p(
+        1.0, 'NavSatFix only: slowest speed whose course over ground gives heading [m/s]',
+        lo=0.1, hi=20.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BufferConfig:
+    max_duration: float = _p(1800.0, 'longest span of data the node buffers [s]',
+                             lo=1.0, hi=86400.0)
+    max_memory_mb: float = _p(1024.0, 'largest memory the node buffer may use [MiB]',
+                              lo=16.0, hi=65536.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OutputConfig:
+    path: str = _p('radar_calibration.yaml', 'result file the node writes (and loads at start)')
+    recording_dir: str = _p('radar_calib_recordings', 'directory for ~/save_recording bags')
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class QosConfig:
+    reliable: bool = _p(False, 'subscribe reliable instead of sensor-data best effort')
+    depth: int = _p(50, 'subscription queue depth', lo=1, hi=10000)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MovingConfig:
+    min_speed_kmh: float = _p(0.1, 'targets with |v_r| below this are stationary [km/h]',
+                              lo=0.0, hi=100.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ClusterConfig:
+    eps_m: float = _p(2.0, 'DBSCAN neighbourhood radius [m]', lo=0.05, hi=20.0)
+    velocity_weight: float = _p(1.0, 'metres of distance per m/s of radial-velocity '
+                                'difference [s]', lo=0.0, hi=100.0)
+    min_samples: int = _p(3, 'DBSCAN minimum cluster size', lo=1, hi=1000)
+    accumulate_frames: int = _p(3, 'consecutive frames accumulated for clustering',
+                                lo=1, hi=50)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AssociateConfig:
+    gate_m: float = _p(3.0, 'largest cluster-centre jump between frames of one track [m]',
+                       lo=0.1, hi=50.0)
+    max_gap_frames: int = _p(5, 'frames a track may go unseen before it ends', lo=0, hi=1000)
+    min_track_frames: int = _p(8, 'shortest track kept [frames]', lo=2, hi=100000)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GroundConfig:
+    radius_m: float = _p(1.0, 'neighbour radius of the density estimate [m]', lo=0.05, hi=20.0)
+    density_fraction: float = _p(0.2, 'targets under this fraction of the maximum density '
+                                 'are dropped', lo=0.0, hi=1.0)
+    targets: str = _p('moving', 'which targets define the ground plane',
+                      choices=('moving', 'all'))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrackConfig:
+    sigma_accel: float = _p(2.0, 'CTRA process noise: jerk density [m/s^3]', lo=1e-3, hi=100.0)
+    sigma_yaw_accel: float = _p(0.5, 'CTRA process noise: yaw acceleration [rad/s^2]',
+                                lo=1e-4, hi=100.0)
+    measurement_sigma_m: float = _p(0.7, 'noise of a cluster centre [m]', lo=1e-3, hi=20.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HypothesesConfig:
+    min_track_frames: int = _p(10, 'shortest track that makes a hypothesis [frames]',
+                               lo=3, hi=100000)
+    min_track_length_m: float = _p(8.0, 'shortest travelled distance of a hypothesis track [m]',
+                                   lo=0.0, hi=1000.0)
+    max_time_gap_s: float = _p(0.1, 'largest gap between a radar stamp and a vehicle pose '
+                               'for a correspondence [s]', lo=0.001, hi=5.0)
+    max_rms_m: float = _p(2.5, 'hypotheses with a larger registration RMS are dropped [m]',
+                          lo=0.01, hi=100.0)
+    eps_m: float = _p(3.0, 'DBSCAN radius over hypothesis translations [m]', lo=0.01, hi=100.0)
+    min_samples: int = _p(2, 'DBSCAN minimum hypotheses per cluster', lo=1, hi=1000)
+    min_passes: int = _p(3, 'fewest agreeing vehicle passes for a calibration', lo=1, hi=1000)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RefineConfig:
+    polygon: bool = _p(True, 'run the paper refinement (closest target + polygon loss)')
+    final: bool = _p(True, 'run the final 6-DoF + clock-offset refinement over all targets')
+    gate_m: float = _p(1.5, 'targets farther than this from the vehicle box are ignored [m]',
+                       lo=0.1, hi=20.0)
+    velocity_sigma_mps: float = _p(0.15, 'radial-velocity noise assumed in the fit [m/s]',
+                                   lo=1e-3, hi=10.0)
+    position_sigma_m: float = _p(0.5, 'target position scatter assumed in the fit [m]',
+                                 lo=1e-3, hi=10.0)
+    profile_harmonics: int = _p(2, 'Fourier order of the reflection profile over aspect angle',
+                                lo=0, hi=8)
+    max_iterations: int = _p(5, 'gate / re-fit rounds of the final refinement', lo=1, hi=50)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class QualityConfig:
+    bootstrap: int = _p(100, 'bootstrap resamples over passes for the uncertainty', lo=0,
+                        hi=10000)
+    seed: int = _p(0, 'seed of the bootstrap', lo=0, hi=2**31 - 1)
+    max_boresight_sigma_m: float = _p(
+        0.05, 'warn and advise when the 1-sigma along the boresight exceeds this [m]',
+        lo=0.0, hi=10.0)
+
+
+_TOP_LEVEL: dict[str, tuple[str, str]] = {
+    'radar_topic': ('radar/points', 'PointCloud2 topic of the radar targets'),
+    'navsat_topic': ('vehicle/fix', 'NavSatFix topic of the calibration vehicle'),
+    'odom_topic': ('vehicle/odom', 'Odometry topic of the calibration vehicle'),
+}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CalibConfig:
+    """All parameters, grouped by section; see ``config/calibrator.yaml``.
+
+    ``explicit`` names the parameters that were given (not defaulted): the bag reader uses
+    it to tell "pick the topic by type" from "this topic must exist".
+    """
+
+    radar_topic: str = _p(*_TOP_LEVEL['radar_topic'])
+    navsat_topic: str = _p(*_TOP_LEVEL['navsat_topic'])
+    odom_topic: str = _p(*_TOP_LEVEL['odom_topic'])
+    radar: RadarConfig = field(default_factory=RadarConfig)
+    world: WorldConfig = field(default_factory=WorldConfig)
+    sync: SyncConfig = field(default_factory=SyncConfig)
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    buffer: BufferConfig = field(default_factory=BufferConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    qos: QosConfig = field(default_factory=QosConfig)
+    moving: MovingConfig = field(default_factory=MovingConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    associate: AssociateConfig = field(default_factory=AssociateConfig)
+    ground: GroundConfig = field(default_factory=GroundConfig)
+    track: TrackConfig = field(default_factory=TrackConfig)
+    hypotheses: HypothesesConfig = field(default_factory=HypothesesConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+    quality: QualityConfig = field(default_factory=QualityConfig)
+    explicit: frozenset[str] = field(default=frozenset(), compare=False)
+
+    @classmethod
+    def from_mapping(cls, params: Mapping[str, Any]) -> CalibConfig:
+        """Build and validate from nested and/or dotted keys (``vehicle.length``).
+
+        Raises
+        ------
+        ConfigError
+            Naming the first unknown, ill-typed or out-of-range parameter.
+        """
+        flat = flatten(params)
+        specs = {spec.name: spec for spec in parameter_specs()}
+        unknown = sorted(set(flat) - set(specs))
+        if unknown:
+            raise ConfigError(f'unknown parameter {unknown[0]!r}'
+                              + (f' (and {len(unknown) - 1} more)' if len(unknown) > 1 else ''))
+        sections: dict[str, dict[str, Any]] = {}
+        top: dict[str, Any] = {}
+        for name, value in flat.items():
+            checked = specs[name].check(value)
+            if '.' in name:
+                section, key = name.split('.', 1)
+                sections.setdefault(section, {})[key] = checked
+            else:
+                top[name] = checked
+        kwargs: dict[str, Any] = dict(top)
+        for f in dataclasses.fields(cls):
+            if f.name in sections:
+                section_cls = type(getattr(cls(), f.name))
+                kwargs[f.name] = section_cls(**sections[f.name])
+        return cls(**kwargs, explicit=frozenset(flat))
+
+    @classmethod
+    def from_file(cls, path: str | Path, node_name: str | None = None) -> CalibConfig:
+        """Read a ROS 2 parameters file (``/**: ros__parameters: ...``)."""
+        return cls.from_mapping(read_params_file(path, node_name))
+
+    def to_flat(self) -> dict[str, Any]:
+        """Every parameter as ``{dotted_name: value}`` (what the node declares)."""
+        out: dict[str, Any] = {}
+        for spec in parameter_specs():
+            out[spec.name] = self.get(spec.name)
+        return out
+
+    def get(self, name: str) -> Any:
+        """Value of a dotted parameter name."""
+        obj: Any = self
+        for part in name.split('.'):
+            obj = getattr(obj, part)
+        return obj
+
+
+@dataclass(frozen=True, slots=True)
+class ParameterSpec:
+    """One parameter: name, type, default, description and constraint."""
+
+    name: str
+    type: type
+    default: Any
+    doc: str
+    lo: float | None
+    hi: float | None
+    choices: tuple[str, ...] | None
+    read_only: bool
+
+    def check(self, value: Any) -> Any:
+        """Return the value in this parameter's type, or raise ConfigError naming it."""
+        want = self.type
+        if want is bool:
+            ok = isinstance(value, bool)
+        elif want is int:
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif want is float:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        else:
+            ok = isinstance(value, str)
+        if not ok:
+            raise ConfigError(f'parameter {self.name!r} must be {want.__name__}, got '
+                              f'{type(value).__name__} {value!r}')
+        if want is float:
+            value = float(value)
+            if not math.isfinite(value):
+                raise ConfigError(f'parameter {self.name!r} must be finite, got {value!r}')
+        if self.lo is not None and value < self.lo or self.hi is not None and value > self.hi:
+            raise ConfigError(f'parameter {self.name!r} = {value!r} is outside '
+                              f'[{self.lo}, {self.hi}]')
+        if self.choices is not None and value not in self.choices:
+            raise ConfigError(f'parameter {self.name!r} = {value!r} is not one of '
+                              f'{list(self.choices)}')
+        return value
+
+
+def parameter_specs() -> Iterator[ParameterSpec]:
+    """All parameters in declaration order, derived from the dataclasses."""
+    root = CalibConfig()
+    for f in dataclasses.fields(CalibConfig):
+        if f.name == 'explicit':
+            continue
+        value = getattr(root, f.name)
+        if dataclasses.is_dataclass(value):
+            for sub in dataclasses.fields(value):
+                yield _spec(f'{f.name}.{sub.name}', sub, getattr(value, sub.name))
+        else:
+            yield _spec(f.name, f, value)
+
+
+def _spec(name: str, f: dataclasses.Field[Any], default: Any) -> ParameterSpec:
+    meta = f.metadata
+    return ParameterSpec(name=name, type=type(default), default=default, doc=meta['doc'],
+                         lo=meta['lo'], hi=meta['hi'], choices=meta['choices'],
+                         read_only=meta['read_only'])
+
+
+def flatten(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Nested mapping -> ``{dotted.name: value}`` (nested and dotted keys are equivalent)."""
+    flat: dict[str, Any] = {}
+    for key, value in params.items():
+        if not isinstance(key, str):
+            raise ConfigError(f'parameter name {key!r} is not a string')
+        name = f'{prefix}{key}'
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, name + '.'))
+        else:
+            if name in flat:
+                raise ConfigError(f'parameter {name!r} is given twice')
+            flat[name] = value
+    return flat
+
+
+def read_params_file(path: str | Path, node_name: str | None = None) -> dict[str, Any]:
+    """The ``ros__parameters`` of a ROS 2 parameters file, merged over node keys.
+
+    Entries under ``/**`` apply to every node; an entry under the node's own name (or any
+    other single name when ``node_name`` is None, as the offline tool has no node name)
+    overrides them, as ROS 2 does.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise ConfigError(f'cannot read parameters file {str(path)!r}: {err.strerror}') from err
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConfigError(f'parameters file {str(path)!r} is not valid YAML: {err}') from err
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise ConfigError(f'parameters file {str(path)!r} must be a mapping of node names')
+    merged: dict[str, Any] = {}
+    keys = sorted(doc, key=lambda k: (k != '/**', str(k)))
+    for key in keys:
+        body = doc[key]
+        if not isinstance(body, dict) or 'ros__parameters' not in body:
+            raise ConfigError(f'parameters file {str(path)!r}: entry {key!r} has no '
+                              '"ros__parameters"')
+        name = str(key).lstrip('/')
+        if key != '/**' and node_name is not None and name.split('/')[-1] != node_name:
+            continue
+        params = body['ros__parameters'] or {}
+        if not isinstance(params, dict):
+            raise ConfigError(f'parameters file {str(path)!r}: ros__parameters of {key!r} '
+                              'is not a mapping')
+        merged.update(flatten(params))
+    return merged
+
+
+def default_params_yaml() -> str:
+    """Text of ``config/calibrator.yaml``: every parameter, its default and a comment."""
+    lines = ['# radar_calib_ros parameters: one file serves the node and `radar-calib`.',
+             '# Generated from radar_calib_ros/config.py (test/test_config.py keeps them equal).',
+             '/**:', '  ros__parameters:']
+    section = None
+    for spec in parameter_specs():
+        if '.' in spec.name:
+            sec, key = spec.name.split('.', 1)
+            if sec != section:
+                lines.append(f'    {sec}:')
+                section = sec
+            indent = '      '
+        else:
+            key, indent = spec.name, '    '
+        value = yaml.safe_dump(spec.default, default_flow_style=True).strip()
+        if value.endswith('...'):
+            value = value[:-3].strip()
+        bound = ''
+        if spec.lo is not None or spec.hi is not None:
+            bound = f' [{spec.lo}, {spec.hi}]'
+        if spec.choices:
+            bound = f' {{{", ".join(spec.choices)}}}'
+        lines.append(f'{indent}{key}: {value}  # {spec.doc}{bound}')
+    return '\n'.join(lines) + '\n'

@@ -1,0 +1,126 @@
+"""run_calibration(): the stages of the method, called in the paper's order.
+
+The node and the offline tool both call this on a ``Recording``; nothing here knows
+whether the data came from a bag or from live messages.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core import associate, cluster, ground_plane, hypotheses, moving, polygon
+from radar_calib_ros.core import quality, refine, track
+from radar_calib_ros.errors import InsufficientDataError
+from radar_calib_ros.recording import Recording
+from radar_calib_ros.result import calibration_dict, quality_dict
+from radar_calib_ros.types import (
+    Extrinsics, GroundPlane, HypothesisSelection, QualityReport, Refinement, SmoothedTrack,
+    TrackedTargets)
+
+_LOG = logging.getLogger(__name__)
+
+#: Called as progress(stage_name, fraction_done) between stages.
+ProgressFn = Callable[[str, float], None]
+
+STAGES = ('moving', 'cluster', 'associate', 'ground_plane', 'track', 'hypotheses',
+          'polygon', 'refine', 'quality')
+
+
+@dataclass(frozen=True, slots=True)
+class CalibrationResult:
+    """Everything a calibration run produced.
+
+    ``extrinsics`` is the final estimate in ``recording.frame`` (local metric frame);
+    ``stage_extrinsics`` the estimate after stages 6, 7 and 8 (for the bench table).
+    """
+
+    extrinsics: Extrinsics
+    quality: QualityReport
+    recording: Recording
+    tracked: TrackedTargets
+    ground: GroundPlane
+    tracks: tuple[SmoothedTrack, ...]
+    selection: HypothesisSelection
+    refinement: Refinement | None
+    stage_extrinsics: dict[str, Extrinsics]
+    stage_times_s: dict[str, float] = field(default_factory=dict)
+
+    def calibration(self, config: CalibConfig, stamp: str | None = None) -> dict[str, Any]:
+        """The contract's result mapping (UTM)."""
+        return calibration_dict(self.extrinsics, self.recording.frame,
+                                world_frame=config.world.frame_id,
+                                radar_frame=self.recording.radar_frame_id,
+                                quality=quality_dict(self.quality), stamp=stamp)
+
+
+def run_calibration(recording: Recording, config: CalibConfig, *,
+                    progress: ProgressFn | None = None) -> CalibrationResult:
+    """Calibrate the radar of a recording.
+
+    Raises
+    ------
+    InsufficientDataError
+        The data cannot be calibrated (vehicle never seen, too few passes, hypotheses that
+        do not agree); the message says which and with what numbers.
+    """
+    times: dict[str, float] = {}
+
+    @contextmanager
+    def stage(name: str) -> Iterator[None]:
+        if progress is not None:
+            progress(name, STAGES.index(name) / len(STAGES))
+        start = time.perf_counter()
+        yield
+        times[name] = time.perf_counter() - start
+        _LOG.debug('stage %s took %.3f s', name, times[name])
+
+    targets = recording.targets
+    if len(targets) == 0:
+        raise InsufficientDataError('moving', 'the recording has no radar target')
+    with stage('moving'):
+        moving_index = np.flatnonzero(moving.filter_moving_targets(
+            targets.radial_velocity_mps, config.moving))
+    if moving_index.size == 0:
+        raise InsufficientDataError('moving', 'no moving radar target in the recording')
+    moving_targets = targets.subset(moving_index)
+    with stage('cluster'):
+        clusters = cluster.cluster_targets(moving_targets, config.cluster)
+    with stage('associate'):
+        tracked_local = associate.associate_clusters(moving_targets, clusters, config.associate)
+    tracked = TrackedTargets(moving_index[tracked_local.target_index], tracked_local.track_id)
+    with stage('ground_plane'):
+        plane_points = (moving_targets.positions_m if config.ground.targets == 'moving'
+                        else targets.positions_m)
+        ground = ground_plane.fit_ground_plane(plane_points, config.ground)
+    with stage('track'):
+        tracks = tuple(track.track_clusters(recording, tracked, ground, config.track))
+    with stage('hypotheses'):
+        hyps = hypotheses.generate_hypotheses(tracks, recording, ground, config)
+        selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, config)
+    stage_extrinsics = {'hypotheses': selection.extrinsics}
+    current = selection.extrinsics
+    if config.refine.polygon:
+        with stage('polygon'):
+            current = polygon.refine_polygon(current, recording, tracked, selection, config)
+        stage_extrinsics['polygon'] = current
+    refinement: Refinement | None = None
+    if config.refine.final:
+        with stage('refine'):
+            refinement = refine.refine_extrinsics(current, recording, tracked, selection,
+                                                  config)
+        current = refinement.extrinsics
+        stage_extrinsics['refine'] = current
+    with stage('quality'):
+        report = quality.assess_quality(current, refinement, recording, tracked, selection,
+                                        config)
+    if progress is not None:
+        progress('done', 1.0)
+    return CalibrationResult(current, report, recording, tracked, ground, tracks, selection,
+                             refinement, stage_extrinsics, times)

@@ -1,0 +1,190 @@
+"""The calibration result: conversion to UTM and the result files of CONTRACT.md.
+
+``calibration_dict`` is the one place a local-frame ``Extrinsics`` becomes the contract's
+keys; the simulator writes its ground truth through it too, so truth and estimate are
+converted identically. Files are written atomically (temporary file in the same
+directory, fsync, rename): a crash mid-write never leaves a broken result file.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from radar_calib_ros.errors import ResultFileError
+from radar_calib_ros.io.geo import LocalFrame
+from radar_calib_ros.types import Extrinsics, QualityReport
+
+RESULT_KEYS = ('world_frame', 'radar_frame', 'epsg', 'translation', 'quaternion_xyzw',
+               'rpy_deg', 'latitude', 'longitude', 'altitude', 'boresight_azimuth_deg',
+               'stamp', 'quality')
+
+
+def extrinsics_to_utm(extrinsics: Extrinsics, frame: LocalFrame) -> tuple[np.ndarray,
+                                                                           np.ndarray]:
+    """(R_utm (3, 3), t_utm (3,)) of a local-frame calibration."""
+    t_local = np.asarray(extrinsics.translation_m, float)
+    r_grid = frame.rotation_local_to_utm(t_local)
+    return r_grid @ extrinsics.rotation, frame.local_to_utm(t_local[None, :])[0]
+
+
+def utm_to_extrinsics(rotation_utm: np.ndarray, translation_utm: np.ndarray,
+                      frame: LocalFrame, time_offset_s: float = 0.0) -> Extrinsics:
+    """Inverse of :func:`extrinsics_to_utm`."""
+    t_local = frame.utm_to_local(np.asarray(translation_utm, float)[None, :])[0]
+    r_grid = frame.rotation_local_to_utm(t_local)
+    return Extrinsics(r_grid.T @ np.asarray(rotation_utm, float), t_local, time_offset_s)
+
+
+def calibration_dict(extrinsics: Extrinsics, frame: LocalFrame, *, world_frame: str = 'utm',
+                     radar_frame: str = 'radar', quality: Mapping[str, Any] | None = None,
+                     stamp: str | None = None) -> dict[str, Any]:
+    """The contract's ``calibration`` mapping (plain Python types, YAML/JSON ready)."""
+    rot_utm, t_utm = extrinsics_to_utm(extrinsics, frame)
+    rot = Rotation.from_matrix(rot_utm)
+    lat, lon, alt = frame.local_to_geodetic(np.asarray(extrinsics.translation_m)[None, :])
+    boresight = rot_utm[:, 0]
+    grid_azimuth = math.atan2(boresight[0], boresight[1])
+    true_azimuth = grid_azimuth - float(frame.utm_convergence_rad(lat, lon)[0])
+    return {
+        'world_frame': world_frame,
+        'radar_frame': radar_frame,
+        'epsg': int(frame.epsg),
+        'translation': [float(v) for v in t_utm],
+        'quaternion_xyzw': [float(v) for v in rot.as_quat()],
+        'rpy_deg': [float(v) for v in rot.as_euler('xyz', degrees=True)],
+        'latitude': float(lat[0]),
+        'longitude': float(lon[0]),
+        'altitude': float(alt[0]),
+        'boresight_azimuth_deg': float(math.degrees(true_azimuth) % 360.0),
+        'stamp': stamp or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds'),
+        'quality': _plain(dict(quality or {})),
+    }
+
+
+def quality_dict(report: QualityReport) -> dict[str, Any]:
+    """The contract's quality figures from a QualityReport."""
+    d = asdict(report)
+    extra = d.pop('extra', {})
+    d['advice'] = list(d['advice'])
+    d['sigma'] = {
+        'translation_m': d.pop('sigma_translation_m'),
+        'along_boresight_m': d.pop('sigma_along_boresight_m'),
+        'across_boresight_m': d.pop('sigma_across_boresight_m'),
+        'vertical_m': d.pop('sigma_vertical_m'),
+        'rotation_deg': d.pop('sigma_rotation_deg'),
+    }
+    d.update(extra)
+    return _plain(d)
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars/arrays -> Python types, recursively (YAML/JSON safe)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def result_yaml_text(calibration: Mapping[str, Any]) -> str:
+    """Text of ``result.yaml``: a ROS 2 parameters file (``/**: ros__parameters:``)."""
+    doc = {'/**': {'ros__parameters': {'calibration': dict(calibration)}}}
+    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+
+
+def write_atomic(path: str | Path, text: str) -> None:
+    """Write a file via a temporary file in the same directory, fsync, rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+        dir_fd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_result_yaml(path: str | Path, calibration: Mapping[str, Any]) -> None:
+    write_atomic(path, result_yaml_text(calibration))
+
+
+def write_result_json(path: str | Path, calibration: Mapping[str, Any]) -> None:
+    write_atomic(path, json.dumps(dict(calibration), indent=2) + '\n')
+
+
+def load_result(path: str | Path) -> dict[str, Any]:
+    """Read and validate a result file (``result.yaml`` or ``result.json`` layout).
+
+    Raises
+    ------
+    ResultFileError
+        Naming what is missing or malformed.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise ResultFileError(f'cannot read result file {str(path)!r}: {err.strerror}') from err
+    try:
+        doc = yaml.safe_load(text)  # JSON is YAML
+    except yaml.YAMLError as err:
+        raise ResultFileError(f'result file {str(path)!r} is not valid YAML/JSON') from err
+    if isinstance(doc, dict) and 'world_frame' not in doc:
+        for body in doc.values():
+            if isinstance(body, dict) and isinstance(body.get('ros__parameters'), dict):
+                doc = body['ros__parameters'].get('calibration')
+                break
+    if not isinstance(doc, dict):
+        raise ResultFileError(f'result file {str(path)!r} has no calibration mapping')
+    missing = [k for k in ('translation', 'quaternion_xyzw', 'epsg') if k not in doc]
+    if missing:
+        raise ResultFileError(f'result file {str(path)!r} lacks {", ".join(missing)}')
+    t = np.asarray(doc['translation'], dtype=float) if _is_numbers(doc['translation'], 3) \
+        else None
+    q = np.asarray(doc['quaternion_xyzw'], dtype=float) if _is_numbers(
+        doc['quaternion_xyzw'], 4) else None
+    if t is None or not np.all(np.isfinite(t)):
+        raise ResultFileError(f'result file {str(path)!r}: translation must be 3 finite numbers')
+    if q is None or not np.all(np.isfinite(q)) or abs(np.linalg.norm(q) - 1.0) > 1e-3:
+        raise ResultFileError(f'result file {str(path)!r}: quaternion_xyzw must be a unit '
+                              'quaternion of 4 numbers')
+    if not isinstance(doc['epsg'], int):
+        raise ResultFileError(f'result file {str(path)!r}: epsg must be an integer')
+    return doc
+
+
+def _is_numbers(value: Any, n: int) -> bool:
+    return (isinstance(value, (list, tuple)) and len(value) == n
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value))
+
+
+def rotation_error_deg(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
+    """Angle of R_a^T R_b [deg]."""
+    return float(np.degrees(Rotation.from_matrix(rot_a.T @ rot_b).magnitude()))
