@@ -323,12 +323,11 @@ def flatten(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
         if not isinstance(key, str):
             raise ConfigError(f'parameter name {key!r} is not a string')
         name = f'{prefix}{key}'
-        if isinstance(value, Mapping):
-            flat.update(flatten(value, name + '.'))
-        else:
-            if name in flat:
-                raise ConfigError(f'parameter {name!r} is given twice')
-            flat[name] = value
+        items = flatten(value, name + '.') if isinstance(value, Mapping) else {name: value}
+        for sub, sub_value in items.items():
+            if sub in flat:
+                raise ConfigError(f'parameter {sub!r} is given twice')
+            flat[sub] = sub_value
     return flat
 
 

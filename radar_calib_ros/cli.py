@@ -1,0 +1,265 @@
+"""radar-calib: the offline tool (CONTRACT.md "The offline tool").
+
+Each command is a function returning an exit code; ``main`` wraps them:
+0 success, 1 the data cannot be calibrated (with the reason, no result file),
+2 bad usage or unreadable input, 130 interrupted. Errors are one ``error: ...`` line on
+stderr; only bugs keep a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.errors import CalibrationError, exit_code
+
+_LOG = logging.getLogger('radar_calib_ros')
+
+
+def _load_config(params: str | None) -> CalibConfig:
+    return CalibConfig.from_file(params) if params else CalibConfig()
+
+
+class _Progress:
+    """tqdm bars on stderr when it is a terminal (or forced); silent otherwise."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self._bar: Any = None
+        self._stage_bar: Any = None
+
+    def reading(self, done: int, total: int) -> None:
+        if not self.enabled:
+            return
+        if self._bar is None:
+            from tqdm import tqdm
+            self._bar = tqdm(total=total, desc='reading', unit='msg', file=sys.stderr,
+                             leave=False)
+        self._bar.update(done - self._bar.n)
+
+    def stage(self, name: str, fraction: float) -> None:
+        if not self.enabled:
+            return
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+        if self._stage_bar is None:
+            from tqdm import tqdm
+            self._stage_bar = tqdm(total=100, desc='calibrating', file=sys.stderr,
+                                   leave=False, bar_format='{desc}: {percentage:3.0f}%|{bar}|')
+        self._stage_bar.set_description(f'calibrating ({name})')
+        self._stage_bar.update(int(round(fraction * 100)) - self._stage_bar.n)
+        if name == 'done':
+            self._stage_bar.close()
+            self._stage_bar = None
+
+
+def calibrate_bag(bag: str | Path, config: CalibConfig, *, progress: _Progress | None = None,
+                  ) -> tuple[Any, float]:
+    """Read a bag and run the pipeline; returns (CalibrationResult, read time [s])."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.pipeline import run_calibration
+    start = time.perf_counter()
+    recording = read_recording(bag, config,
+                               progress=progress.reading if progress else None)
+    read_s = time.perf_counter() - start
+    result = run_calibration(recording, config,
+                             progress=progress.stage if progress else None)
+    return result, read_s
+
+
+def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | None = None,
+                  read_s: float | None = None) -> list[str]:
+    """The one-screen summary of a calibration."""
+    q = calibration.get('quality') or {}
+    sigma = q.get('sigma') or {}
+    e, n, alt = calibration['translation']
+    r, p, y = calibration['rpy_deg']
+    lines = [
+        f'radar frame {calibration["radar_frame"]!r} in {calibration["world_frame"]} '
+        f'(EPSG:{calibration["epsg"]})',
+        f'  position   E {e:.3f}  N {n:.3f}  alt {alt:.3f} m',
+        f'  lat/lon    {calibration["latitude"]:.8f}, {calibration["longitude"]:.8f}',
+        f'  roll/pitch/yaw  {r:.3f} / {p:.3f} / {y:.3f} deg   boresight '
+        f'{calibration["boresight_azimuth_deg"]:.2f} deg from true north',
+    ]
+    if q:
+        lines.append(
+            f'  quality    r_i {100 * _num(q.get("inlier_ratio")):.1f} %  '
+            f'delta_op {_num(q.get("outlier_distance_m")):.2f} m  '
+            f'delta_p {_num(q.get("closest_target_offset_m")):.2f} m  '
+            f'passes {q.get("passes")}  tracks {q.get("tracks_used")}  '
+            f'clock offset {1000 * _num(q.get("time_offset_s")):.1f} ms')
+        lines.append(
+            f'  1-sigma    {_num(sigma.get("translation_m")):.3f} m (along boresight '
+            f'{_num(sigma.get("along_boresight_m")):.3f}, across '
+            f'{_num(sigma.get("across_boresight_m")):.3f}, vertical '
+            f'{_num(sigma.get("vertical_m")):.3f})  rotation '
+            f'{_num(sigma.get("rotation_deg")):.3f} deg')
+    if stage_times:
+        parts = [f'{k} {v:.2f}' for k, v in stage_times.items()]
+        if read_s is not None:
+            parts.insert(0, f'read {read_s:.2f}')
+        lines.append('  time [s]   ' + '  '.join(parts))
+    for advice in q.get('advice') or []:
+        lines.append(f'  advice: {advice}')
+    return lines
+
+
+def _num(value: Any) -> float:
+    return float(value) if isinstance(value, (int, float)) else math.nan
+
+
+def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
+    from radar_calib_ros.result import write_result_json, write_result_yaml
+    config = _load_config(args.params)
+    progress = _Progress(args.progress if args.progress is not None else sys.stderr.isatty())
+    result, read_s = calibrate_bag(args.bag, config, progress=progress)
+    calibration = result.calibration(config)
+    write_result_yaml(args.output, calibration)
+    if args.json:
+        write_result_json(args.json, calibration)
+    for line in summary_lines(calibration, result.stage_times_s, read_s):
+        print(line, file=out)
+    for advice in calibration['quality'].get('advice') or []:
+        print(f'warning: {advice}', file=sys.stderr)
+    print(f'result written to {args.output}' + (f' and {args.json}' if args.json else ''),
+          file=out)
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace, out: TextIO) -> int:
+    from radar_calib_ros.sim import simulate
+    start = time.perf_counter()
+    summary = simulate(args.out_bag, seed=args.seed, duration_s=args.duration,
+                       storage=args.storage, scenario=args.scenario,
+                       scatter_model=args.scatter_model)
+    print(f'simulated {args.scenario!r} ({args.duration:.0f} s, seed {args.seed}) into '
+          f'{args.out_bag} in {time.perf_counter() - start:.1f} s: {summary.n_frames} radar '
+          f'frames, {summary.n_targets} targets, {summary.n_passes} passes of the calibration '
+          'vehicle', file=out)
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
+    from radar_calib_ros.groundtruth import calibration_errors, load_ground_truth
+    from radar_calib_ros.result import write_result_yaml
+    from radar_calib_ros.sim import simulate
+    with tempfile.TemporaryDirectory(prefix='radar_calib_demo_') as tmp:
+        work = Path(args.out) if args.out else Path(tmp)
+        bag = work / 'demo_bag'
+        print(f'1/3 simulating a {args.duration:.0f} s drive past a roadside radar '
+              f'(scenario {args.scenario!r}, seed {args.seed}) ...', file=out)
+        start = time.perf_counter()
+        simulate(bag, seed=args.seed, duration_s=args.duration, scenario=args.scenario)
+        params = bag / 'params.yaml'
+        config = _load_config(str(params) if params.is_file() else None)
+        print(f'2/3 calibrating {bag} ...', file=out)
+        result, read_s = calibrate_bag(bag, config, progress=_Progress(sys.stderr.isatty()))
+        calibration = result.calibration(config)
+        write_result_yaml(work / 'result.yaml', calibration)
+        print('3/3 result', file=out)
+        for line in summary_lines(calibration, result.stage_times_s, read_s):
+            print(line, file=out)
+        truth = load_ground_truth(bag)
+        if truth is not None:
+            print(_truth_table(calibration, truth, result), file=out)
+        print(f'done in {time.perf_counter() - start:.1f} s'
+              + (f'; files in {work}' if args.out else ''), file=out)
+    return 0
+
+
+def _truth_table(calibration: dict[str, Any], truth: dict[str, Any], result: Any) -> str:
+    from radar_calib_ros.groundtruth import calibration_errors
+    from radar_calib_ros.result import calibration_dict
+    rows = ['', f'{"":<22}{"estimate":>14}{"truth":>14}{"error":>12}']
+    for i, axis in enumerate(('easting [m]', 'northing [m]', 'altitude [m]')):
+        est, tru = calibration['translation'][i], truth['translation'][i]
+        rows.append(f'{axis:<22}{est:>14.3f}{tru:>14.3f}{est - tru:>12.3f}')
+    for i, axis in enumerate(('roll [deg]', 'pitch [deg]', 'yaw [deg]')):
+        est, tru = calibration['rpy_deg'][i], truth['rpy_deg'][i]
+        rows.append(f'{axis:<22}{est:>14.3f}{tru:>14.3f}'
+                    f'{(est - tru + 180.0) % 360.0 - 180.0:>12.3f}')
+    est_dt = calibration['quality'].get('time_offset_s')
+    if est_dt is not None and 'time_offset_s' in truth:
+        rows.append(f'{"clock offset [ms]":<22}{1000 * est_dt:>14.1f}'
+                    f'{1000 * truth["time_offset_s"]:>14.1f}'
+                    f'{1000 * (est_dt - truth["time_offset_s"]):>12.1f}')
+    err = calibration_errors(calibration, truth)
+    rows.append(f'errors: horizontal {100 * err["horizontal_m"]:.1f} cm, vertical '
+                f'{100 * err["vertical_m"]:.1f} cm, rotation {err["rotation_deg"]:.3f} deg')
+    stages = []
+    for name, ext in result.stage_extrinsics.items():
+        e = calibration_errors(calibration_dict(ext, result.recording.frame), truth)
+        stages.append(f'{name} {100 * e["horizontal_m"]:.1f} cm / {e["rotation_deg"]:.2f} deg')
+    rows.append('after each stage (horizontal / rotation): ' + ', '.join(stages))
+    return '\n'.join(rows)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='radar-calib', description='Target-less geo-referenced radar calibration from a '
+        'connected vehicle (offline tool; no ROS needed).')
+    parser.add_argument('-v', '--verbose', action='store_true', help='log progress details')
+    sub = parser.add_subparsers(dest='command', required=True)
+
+    p = sub.add_parser('calibrate', help='calibrate a radar from a rosbag2 recording')
+    p.add_argument('bag', help='rosbag2 directory (sqlite3 or mcap)')
+    p.add_argument('--params', help='ROS 2 parameters file (default: built-in defaults)')
+    p.add_argument('--output', default='result.yaml', help='result file (default: %(default)s)')
+    p.add_argument('--json', help='also write the result as JSON here')
+    p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
+                   help='progress bars (default: when stderr is a terminal)')
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser('simulate', help='write a synthetic recording with its ground truth')
+    p.add_argument('out_bag', help='bag directory to create')
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--duration', type=float, default=600.0, help='seconds (default: 600)')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
+    p.add_argument('--scenario', default='baseline')
+    p.add_argument('--scatter-model', default=None,
+                   help='where on road users the radar sees them (skin, interior, mixed)')
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser('demo', help='simulate, calibrate and compare with the ground truth')
+    p.add_argument('--seed', type=int, default=1)
+    p.add_argument('--duration', type=float, default=150.0)
+    p.add_argument('--scenario', default='baseline')
+    p.add_argument('--out', help='keep the bag and result in this directory')
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
+    """Run the tool; returns the exit code (0 ok, 1 cannot calibrate, 2 bad input)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as err:  # argparse: 0 for --help, 2 for bad usage
+        return int(err.code or 0)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format='%(levelname)s %(name)s: %(message)s')
+    try:
+        return int(args.func(args, out or sys.stdout))
+    except CalibrationError as err:
+        print(f'error: {err}', file=sys.stderr)
+        return exit_code(err)
+    except KeyboardInterrupt:
+        print('error: interrupted', file=sys.stderr)
+        return 130
+
+
+def console_main() -> None:
+    sys.exit(main())
+
+
+if __name__ == '__main__':
+    console_main()
