@@ -1,0 +1,96 @@
+"""Result conversion local -> UTM, the result files, and their validation."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from radar_calib_ros.errors import ResultFileError
+from radar_calib_ros.io.geo import LocalFrame
+from radar_calib_ros.result import (
+    calibration_dict, extrinsics_to_utm, load_result, utm_to_extrinsics, write_atomic,
+    write_result_json, write_result_yaml)
+from radar_calib_ros.types import Extrinsics
+
+SITES = [(48.40, 9.99), (48.0, 12.5), (-33.9, 18.4), (60.2, 24.9)]
+
+
+def _rz(deg: float) -> np.ndarray:
+    return Rotation.from_euler('z', deg, degrees=True).as_matrix()
+
+
+@pytest.mark.parametrize('lat, lon', SITES)
+def test_boresight_pointing_true_north_reads_zero(lat: float, lon: float) -> None:
+    frame = LocalFrame.at(lat, lon)
+    # local grid north is true north at the frame's origin, so yaw 90 deg points north
+    cal = calibration_dict(Extrinsics(_rz(90.0), np.zeros(3)), frame)
+    assert abs((cal['boresight_azimuth_deg'] + 180.0) % 360.0 - 180.0) < 1e-6
+    # the UTM grid yaw differs from 90 deg by the meridian convergence (pyproj's sign:
+    # positive east of the central meridian in the north)
+    conv = pyproj.Proj(f'EPSG:{frame.epsg}').get_factors(lon, lat).meridian_convergence
+    assert cal['rpy_deg'][2] == pytest.approx(90.0 + conv, abs=1e-4)
+
+
+@pytest.mark.parametrize('lat, lon', SITES)
+def test_utm_round_trip(lat: float, lon: float) -> None:
+    frame = LocalFrame.at(lat, lon)
+    ext = Extrinsics(Rotation.from_euler('xyz', [1.5, 8.0, -130.0], degrees=True).as_matrix(),
+                     np.array([35.0, -80.0, 490.0]))
+    r_utm, t_utm = extrinsics_to_utm(ext, frame)
+    back = utm_to_extrinsics(r_utm, t_utm, frame)
+    assert np.allclose(back.rotation, ext.rotation, atol=1e-12)
+    assert np.allclose(back.translation_m, ext.translation_m, atol=1e-6)
+    e, n = pyproj.Transformer.from_crs('EPSG:4326', f'EPSG:{frame.epsg}', always_xy=True
+                                       ).transform(*frame.local_to_geodetic(
+                                           ext.translation_m[None])[1::-1])
+    assert np.allclose(t_utm[:2], [e[0], n[0]], atol=1e-6)
+
+
+def test_result_yaml_is_a_ros_parameters_file(tmp_path: Path) -> None:
+    frame = LocalFrame.at(48.4, 9.99)
+    cal = calibration_dict(Extrinsics(_rz(10.0), np.array([1.0, 2.0, 480.0])), frame,
+                           quality={'inlier_ratio': np.float64(0.7), 'advice': []})
+    write_result_yaml(tmp_path / 'r.yaml', cal)
+    doc = yaml.safe_load((tmp_path / 'r.yaml').read_text())
+    body = doc['/**']['ros__parameters']['calibration']
+    assert list(body) == ['world_frame', 'radar_frame', 'epsg', 'translation',
+                          'quaternion_xyzw', 'rpy_deg', 'latitude', 'longitude', 'altitude',
+                          'boresight_azimuth_deg', 'stamp', 'quality']
+    assert body['quality']['inlier_ratio'] == pytest.approx(0.7)
+    assert load_result(tmp_path / 'r.yaml')['epsg'] == frame.epsg
+    write_result_json(tmp_path / 'r.json', cal)
+    assert json.loads((tmp_path / 'r.json').read_text())['translation'] == cal['translation']
+    assert load_result(tmp_path / 'r.json')['translation'] == cal['translation']
+
+
+@pytest.mark.parametrize('text, match', [
+    ('', 'no calibration mapping'),
+    ('/**: {ros__parameters: {calibration: {epsg: 32632}}}', 'lacks translation'),
+    ('{"epsg": 32632, "translation": [1, 2], "quaternion_xyzw": [0, 0, 0, 1]}',
+     'translation must be 3 finite numbers'),
+    ('{"epsg": 32632, "translation": [1, 2, 3], "quaternion_xyzw": [0, 0, 0, 2]}',
+     'unit quaternion'),
+    ('{"epsg": "x", "translation": [1, 2, 3], "quaternion_xyzw": [0, 0, 0, 1]}',
+     'epsg must be an integer'),
+    ('{"epsg": 3', 'not valid YAML'),
+])
+def test_corrupt_result_files(tmp_path: Path, text: str, match: str) -> None:
+    path = tmp_path / 'r.yaml'
+    path.write_text(text)
+    with pytest.raises(ResultFileError, match=match):
+        load_result(path)
+
+
+def test_write_atomic_keeps_old_file_on_failure(tmp_path: Path) -> None:
+    path = tmp_path / 'r.yaml'
+    write_atomic(path, 'old\n')
+
+    with pytest.raises(TypeError):
+        write_atomic(path, 123)  # type: ignore[arg-type]
+    assert path.read_text() == 'old\n'
+    assert [p.name for p in tmp_path.iterdir()] == ['r.yaml']
