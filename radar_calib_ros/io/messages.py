@@ -1,0 +1,401 @@
+"""ROS 2 messages <-> decoded samples: the typestore, decoders and encoders.
+
+Decoders read only the attributes a message has in both worlds (rosbags message objects,
+whose ``uint8[]`` data is a numpy array, and rclpy messages, whose data is an
+``array.array('B')`` or ``bytes``), so the offline tool and the node share them.
+PointCloud2 decoding is one ``np.frombuffer`` with a structured dtype per message: no
+per-target Python.
+
+Encoders build rosbags message objects of a given typestore (the simulator, the tests and
+the node's ``~/save_recording`` write bags with them).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore as _rosbags_typestore
+
+from radar_calib_ros.errors import DecodeError
+from radar_calib_ros.types import FixSample, OdomSample, RadarFrame
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike, DTypeLike
+    from rosbags.typesys.store import Typestore
+
+__all__ = [
+    'POINTCLOUD2', 'NAVSATFIX', 'ODOMETRY', 'RADARSCAN', 'VELOCITY_FIELD_NAMES',
+    'get_typestore', 'stamp_ns', 'decode_pointcloud', 'decode_radarscan', 'decode_navsatfix',
+    'decode_odometry', 'encode_pointcloud', 'encode_navsatfix', 'encode_odometry',
+    'msg_schemas_dir',
+]
+
+POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
+NAVSATFIX = 'sensor_msgs/msg/NavSatFix'
+ODOMETRY = 'nav_msgs/msg/Odometry'
+RADARSCAN = 'radar_msgs/msg/RadarScan'
+
+#: Radial-velocity field names tried in this order when ``radar.velocity_field`` is empty.
+VELOCITY_FIELD_NAMES = ('velocity', 'radial_velocity', 'radial_speed', 'doppler', 'v_r', 'vr',
+                        'range_rate')
+
+# sensor_msgs/msg/PointField datatype constants -> numpy type codes (byte order added later)
+_POINTFIELD_TYPES: dict[int, str] = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4',
+                                     7: 'f4', 8: 'f8'}
+_POINTFIELD_NAMES = {1: 'INT8', 2: 'UINT8', 3: 'INT16', 4: 'UINT16', 5: 'INT32', 6: 'UINT32',
+                     7: 'FLOAT32', 8: 'FLOAT64'}
+_NUMPY_TO_POINTFIELD = {np.dtype(code).str[1:]: datatype
+                        for datatype, code in _POINTFIELD_TYPES.items()}
+_FLOAT_TYPES = (7, 8)
+
+_PACKAGE_NAME = 'radar_calib_ros'
+
+
+# --- typestore ---------------------------------------------------------------------------
+
+def msg_schemas_dir() -> Path:
+    """Directory holding our extra ``.msg`` definitions (``msg_schemas/``).
+
+    A source checkout or editable install has it next to the package; a colcon or pip
+    install puts it under ``<prefix>/share/radar_calib_ros/msg_schemas`` (setup.py
+    ``data_files``), where ``<prefix>`` is an ancestor of the installed package. Walking up
+    from this file finds either without relying on ``sys.prefix``.
+
+    Raises
+    ------
+    FileNotFoundError
+        Neither location exists (a broken install).
+    """
+    here = Path(__file__).resolve().parent
+    tried = []
+    for ancestor in here.parents:
+        for candidate in (ancestor / 'msg_schemas',
+                          ancestor / 'share' / _PACKAGE_NAME / 'msg_schemas'):
+            if any(candidate.glob('*.msg')):
+                return candidate
+            tried.append(str(candidate))
+    raise FileNotFoundError(f'msg_schemas with the radar_msgs definitions not found (looked '
+                            f'in {len(tried)} places up from {here}); reinstall the package')
+
+
+def _schema_types(directory: Path) -> dict[str, Any]:
+    """Parse every ``<pkg>__msg__<Name>.msg`` in a directory into rosbags field defs."""
+    types: dict[str, Any] = {}
+    for path in sorted(directory.glob('*.msg')):
+        msgtype = path.stem.replace('__', '/')
+        types.update(get_types_from_msg(path.read_text(encoding='utf-8'), msgtype))
+    return types
+
+
+def get_typestore() -> Typestore:
+    """A fresh ROS 2 Jazzy typestore with our ``msg_schemas`` (radar_msgs) registered.
+
+    A new store per call (as rosbags' own ``get_typestore``), so registering types never
+    leaks between readers, writers or tests.
+    """
+    store = _rosbags_typestore(Stores.ROS2_JAZZY)
+    store.register(_schema_types(msg_schemas_dir()))
+    return store
+
+
+# --- decoding ----------------------------------------------------------------------------
+
+def stamp_ns(header: Any) -> int:
+    """Header stamp (``builtin_interfaces/Time``) as integer nanoseconds."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def _field_table(fields: Sequence[Any]) -> dict[str, tuple[int, int]]:
+    """``{name: (offset, datatype)}``; the first of duplicate names wins (as PCL does)."""
+    table: dict[str, tuple[int, int]] = {}
+    for f in fields:
+        table.setdefault(str(f.name), (int(f.offset), int(f.datatype)))
+    return table
+
+
+def _fields_extent(fields: Sequence[Any]) -> int:
+    """Bytes from the start of a point to the end of its last field of known size."""
+    extent = 0
+    for f in fields:
+        code = _POINTFIELD_TYPES.get(int(f.datatype))
+        if code is not None:
+            extent = max(extent, int(f.offset) + np.dtype(code).itemsize * max(int(f.count), 1))
+    return extent
+
+
+def _fields_listing(table: Mapping[str, tuple[int, int]]) -> str:
+    return ', '.join(table) if table else 'none'
+
+
+def _choose_velocity_field(table: Mapping[str, tuple[int, int]], velocity_field: str) -> str:
+    if velocity_field:
+        if velocity_field not in table:
+            raise DecodeError(f'PointCloud2 has no velocity field {velocity_field!r} '
+                              f'(radar.velocity_field); fields found: {_fields_listing(table)}')
+        return velocity_field
+    for name in VELOCITY_FIELD_NAMES:
+        if name in table:
+            return name
+    raise DecodeError(f'PointCloud2 has no radial-velocity field (looked for '
+                      f'{", ".join(VELOCITY_FIELD_NAMES)}; set radar.velocity_field); fields '
+                      f'found: {_fields_listing(table)}')
+
+
+def _numpy_code(name: str, datatype: int, *, float_only: bool) -> str:
+    code = _POINTFIELD_TYPES.get(datatype)
+    if code is None or (float_only and datatype not in _FLOAT_TYPES):
+        kind = _POINTFIELD_NAMES.get(datatype, f'unknown datatype {datatype}')
+        want = 'FLOAT32 or FLOAT64' if float_only else 'a numeric PointField datatype'
+        raise DecodeError(f'PointCloud2 field {name!r} has unsupported datatype {kind} '
+                          f'(need {want})')
+    return code
+
+
+def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
+    """Radar targets of one ``sensor_msgs/msg/PointCloud2``.
+
+    Parameters
+    ----------
+    msg : PointCloud2
+        A rosbags or rclpy message. Read: ``header.stamp``, ``fields`` (name, offset,
+        datatype, count), ``point_step``, ``row_step`` (if present), ``width``, ``height``,
+        ``is_bigendian``, ``data``.
+    velocity_field : str, default=''
+        Name of the radial-velocity field; empty tries ``VELOCITY_FIELD_NAMES`` in order.
+
+    Returns
+    -------
+    RadarFrame
+        Targets with NaN/inf in any used field dropped (counted in ``dropped_nonfinite``).
+        Positions come from x/y/z or, when those are absent, from range/azimuth/elevation
+        (m, rad; x = r cos(el) cos(az), y = r cos(el) sin(az), z = r sin(el)).
+
+    Raises
+    ------
+    DecodeError
+        Data shorter than the points it declares, ``point_step`` smaller than the fields,
+        no position or velocity field, or an unsupported datatype.
+    """
+    stamp = stamp_ns(msg.header)
+    width, height = int(msg.width), int(msg.height)
+    point_step = int(msg.point_step)
+    n = width * height
+    fields = list(msg.fields)
+    if n == 0 and not fields:
+        # drivers publish empty clouds without fields when nothing was detected
+        return RadarFrame(stamp, np.zeros((0, 3)), np.zeros(0))
+    table = _field_table(fields)
+    if {'x', 'y', 'z'} <= table.keys():
+        position_names, spherical = ('x', 'y', 'z'), False
+    elif {'range', 'azimuth', 'elevation'} <= table.keys():
+        position_names, spherical = ('range', 'azimuth', 'elevation'), True
+    else:
+        raise DecodeError('PointCloud2 has neither x/y/z nor range/azimuth/elevation fields; '
+                          f'fields found: {_fields_listing(table)}')
+    v_name = _choose_velocity_field(table, velocity_field)
+    extent = _fields_extent(fields)
+    if point_step < extent:
+        raise DecodeError(f'PointCloud2 point_step {point_step} is smaller than its fields '
+                          f'({extent} bytes)')
+    order = '>' if msg.is_bigendian else '<'
+    names = [*position_names, v_name]
+    formats = [order + _numpy_code(name, table[name][1], float_only=name != v_name)
+               for name in names]
+    dtype = np.dtype({'names': ['p0', 'p1', 'p2', 'v'], 'formats': formats,
+                      'offsets': [table[name][0] for name in names], 'itemsize': point_step})
+    raw = np.frombuffer(msg.data, np.uint8)
+    row_bytes = width * point_step
+    row_step = int(getattr(msg, 'row_step', row_bytes) or row_bytes)
+    if height > 1 and row_step > row_bytes:
+        # rows padded at their end: the last row needs no padding after it
+        need = (height - 1) * row_step + row_bytes
+        if raw.size < need:
+            raise DecodeError(f'PointCloud2 data has {raw.size} bytes, fewer than height '
+                              f'{height} x row_step {row_step} (last row {row_bytes}) = {need}')
+        rows = np.lib.stride_tricks.as_strided(raw, (height, row_bytes), (row_step, 1),
+                                               writeable=False)
+        points = np.ascontiguousarray(rows).reshape(-1).view(dtype)
+    else:
+        need = n * point_step
+        if raw.size < need:
+            raise DecodeError(f'PointCloud2 data has {raw.size} bytes, fewer than width {width}'
+                              f' x height {height} x point_step {point_step} = {need}')
+        points = np.frombuffer(raw, dtype, count=n)
+    p0 = points['p0'].astype(np.float64)
+    p1 = points['p1'].astype(np.float64)
+    p2 = points['p2'].astype(np.float64)
+    velocity = points['v'].astype(np.float64)
+    finite = np.isfinite(p0) & np.isfinite(p1) & np.isfinite(p2) & np.isfinite(velocity)
+    dropped = int(n - np.count_nonzero(finite))
+    if dropped:
+        p0, p1, p2, velocity = p0[finite], p1[finite], p2[finite], velocity[finite]
+    if spherical:
+        horizontal = p0 * np.cos(p2)
+        positions = np.column_stack([horizontal * np.cos(p1), horizontal * np.sin(p1),
+                                     p0 * np.sin(p2)])
+    else:
+        positions = np.column_stack([p0, p1, p2])
+    return RadarFrame(stamp, positions, velocity, dropped_nonfinite=dropped)
+
+
+def decode_radarscan(msg: Any) -> RadarFrame:
+    """Radar targets of one ``radar_msgs/msg/RadarScan`` (spherical returns, doppler_velocity
+    as the radial velocity); non-finite returns dropped and counted."""
+    returns = msg.returns
+    values = np.array([(r.range, r.azimuth, r.elevation, r.doppler_velocity) for r in returns],
+                      np.float64).reshape(-1, 4)
+    finite = np.isfinite(values).all(axis=1)
+    values = values[finite]
+    rng, az, el = values[:, 0], values[:, 1], values[:, 2]
+    horizontal = rng * np.cos(el)
+    positions = np.column_stack([horizontal * np.cos(az), horizontal * np.sin(az),
+                                 rng * np.sin(el)])
+    return RadarFrame(stamp_ns(msg.header), positions, values[:, 3].copy(),
+                      dropped_nonfinite=int(finite.size - np.count_nonzero(finite)))
+
+
+def decode_navsatfix(msg: Any) -> FixSample:
+    """One ``sensor_msgs/msg/NavSatFix``; no filtering (``RecordingBuilder.add_fix`` drops
+    and counts no-fix and non-finite samples)."""
+    return FixSample(stamp_ns(msg.header), float(msg.latitude), float(msg.longitude),
+                     float(msg.altitude), int(msg.status.status))
+
+
+def decode_odometry(msg: Any) -> OdomSample:
+    """One ``nav_msgs/msg/Odometry``; no filtering (``RecordingBuilder.add_odometry`` does)."""
+    p = msg.pose.pose.position
+    q = msg.pose.pose.orientation
+    v = msg.twist.twist.linear
+    return OdomSample(stamp_ns(msg.header), (float(p.x), float(p.y), float(p.z)),
+                      (float(q.x), float(q.y), float(q.z), float(q.w)),
+                      (float(v.x), float(v.y), float(v.z)), float(msg.twist.twist.angular.z))
+
+
+# --- encoding ----------------------------------------------------------------------------
+
+def _header(typestore: Typestore, stamp: int, frame_id: str) -> Any:
+    types = typestore.types
+    sec, nanosec = divmod(int(stamp), 1_000_000_000)
+    return types['std_msgs/msg/Header'](
+        stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+
+def encode_pointcloud(typestore: Typestore, stamp_ns: int, frame_id: str,
+                      positions_m: ArrayLike, radial_velocity_mps: ArrayLike, *,
+                      layout: str = 'xyz', dtype: DTypeLike = np.float32,
+                      big_endian: bool = False, pad_bytes: int = 0,
+                      velocity_field: str = 'velocity',
+                      extra_fields: Mapping[str, ArrayLike] | None = None) -> Any:
+    """A ``sensor_msgs/msg/PointCloud2`` (height 1) of radar targets.
+
+    Parameters
+    ----------
+    typestore : Typestore
+        Store whose message classes are used (``get_typestore()``).
+    stamp_ns : int
+        Header stamp [ns].
+    frame_id : str
+    positions_m : array_like of shape (n, 3)
+        Targets in the sensor frame, x forward, y left, z up [m].
+    radial_velocity_mps : array_like of shape (n,)
+        Positive = moving away [m/s].
+    layout : {'xyz', 'spherical'}, default='xyz'
+        Fields x, y, z or range, azimuth, elevation (m, rad).
+    dtype : float32 or float64, default=float32
+        Type of the position and velocity fields.
+    big_endian : bool, default=False
+    pad_bytes : int, default=0
+        Unused bytes appended to each point (odd ``point_step``).
+    velocity_field : str, default='velocity'
+    extra_fields : dict of str to array_like of shape (n,), optional
+        More fields (e.g. ``rcs``), each in its array's numeric dtype.
+    """
+    types = typestore.types
+    positions = np.asarray(positions_m, np.float64).reshape(-1, 3)
+    n = positions.shape[0]
+    velocity = np.asarray(radial_velocity_mps, np.float64).reshape(n)
+    value_type = np.dtype(dtype)
+    if value_type.str[1:] not in ('f4', 'f8'):
+        raise ValueError(f'dtype must be float32 or float64, got {value_type}')
+    if layout == 'xyz':
+        columns = {'x': positions[:, 0], 'y': positions[:, 1], 'z': positions[:, 2]}
+    elif layout == 'spherical':
+        rng = np.linalg.norm(positions, axis=1)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            elevation = np.where(rng > 0, np.arcsin(np.clip(positions[:, 2] / rng, -1, 1)), 0.0)
+        columns = {'range': rng, 'azimuth': np.arctan2(positions[:, 1], positions[:, 0]),
+                   'elevation': elevation}
+    else:
+        raise ValueError(f"layout must be 'xyz' or 'spherical', got {layout!r}")
+    order = '>' if big_endian else '<'
+    columns[velocity_field] = velocity
+    column_types = {name: np.dtype(order + value_type.str[1:]) for name in columns}
+    for name, values in (extra_fields or {}).items():
+        array = np.asarray(values).reshape(n)
+        if array.dtype.str[1:] not in _NUMPY_TO_POINTFIELD:
+            raise ValueError(f'extra field {name!r} has dtype {array.dtype}, which PointField '
+                             'cannot carry')
+        columns[name] = array
+        column_types[name] = np.dtype(order + array.dtype.str[1:])
+    offsets, offset = [], 0
+    for name in columns:
+        offsets.append(offset)
+        offset += column_types[name].itemsize
+    point_step = offset + int(pad_bytes)
+    record = np.dtype({'names': list(columns), 'formats': list(column_types.values()),
+                       'offsets': offsets, 'itemsize': point_step})
+    points = np.zeros(n, record)
+    for name, values in columns.items():
+        points[name] = values
+    point_field = types['sensor_msgs/msg/PointField']
+    fields = [point_field(name=name, offset=off,
+                          datatype=_NUMPY_TO_POINTFIELD[column_types[name].str[1:]], count=1)
+              for name, off in zip(columns, offsets)]
+    return types[POINTCLOUD2](
+        header=_header(typestore, stamp_ns, frame_id), height=1, width=n, fields=fields,
+        is_bigendian=bool(big_endian), point_step=point_step, row_step=point_step * n,
+        data=points.view(np.uint8).reshape(-1), is_dense=bool(np.isfinite(positions).all()))
+
+
+def encode_navsatfix(typestore: Typestore, stamp_ns: int, frame_id: str, lat_deg: float,
+                     lon_deg: float, alt_m: float, status: int = 2,
+                     position_sigma_m: float = 0.02) -> Any:
+    """A ``sensor_msgs/msg/NavSatFix`` (WGS 84, ellipsoidal altitude).
+
+    ``status`` 2 is STATUS_GBAS_FIX (RTK), -1 STATUS_NO_FIX; the covariance is diagonal
+    with ``position_sigma_m`` on every axis (COVARIANCE_TYPE_DIAGONAL_KNOWN).
+    """
+    types = typestore.types
+    covariance = np.zeros(9)
+    covariance[::4] = position_sigma_m ** 2
+    return types[NAVSATFIX](
+        header=_header(typestore, stamp_ns, frame_id),
+        status=types['sensor_msgs/msg/NavSatStatus'](status=int(status), service=1),
+        latitude=float(lat_deg), longitude=float(lon_deg), altitude=float(alt_m),
+        position_covariance=covariance, position_covariance_type=2)
+
+
+def encode_odometry(typestore: Typestore, stamp_ns: int, frame_id: str, child_frame_id: str,
+                    position_m: ArrayLike, quaternion_xyzw: ArrayLike,
+                    velocity_body_mps: ArrayLike, yaw_rate_rps: float) -> Any:
+    """A ``nav_msgs/msg/Odometry``: pose in ``frame_id`` (orientation ENU against true
+    north), twist in ``child_frame_id`` (the vehicle frame); zero covariances."""
+    types = typestore.types
+    px, py, pz = (float(v) for v in np.asarray(position_m, float).reshape(3))
+    qx, qy, qz, qw = (float(v) for v in np.asarray(quaternion_xyzw, float).reshape(4))
+    vx, vy, vz = (float(v) for v in np.asarray(velocity_body_mps, float).reshape(3))
+    vector3 = types['geometry_msgs/msg/Vector3']
+    pose = types['geometry_msgs/msg/Pose'](
+        position=types['geometry_msgs/msg/Point'](x=px, y=py, z=pz),
+        orientation=types['geometry_msgs/msg/Quaternion'](x=qx, y=qy, z=qz, w=qw))
+    twist = types['geometry_msgs/msg/Twist'](
+        linear=vector3(x=vx, y=vy, z=vz),
+        angular=vector3(x=0.0, y=0.0, z=float(yaw_rate_rps)))
+    return types[ODOMETRY](
+        header=_header(typestore, stamp_ns, frame_id), child_frame_id=child_frame_id,
+        pose=types['geometry_msgs/msg/PoseWithCovariance'](pose=pose, covariance=np.zeros(36)),
+        twist=types['geometry_msgs/msg/TwistWithCovariance'](twist=twist,
+                                                             covariance=np.zeros(36)))
+
