@@ -1,0 +1,309 @@
+"""rosbag2 recordings (sqlite3 and mcap storage) in and out, with rosbags.
+
+``read_recording`` opens a bag with ``AnyReader`` (the bag's embedded definitions, or our
+Jazzy typestore for bags without them), picks the radar, NavSatFix and Odometry topics
+(``select_topics``), decodes every message with ``io.messages`` and feeds a
+``RecordingBuilder``: the same path the node takes message by message. Stamps are header
+stamps, never the bag's receive times.
+
+Every failure of the input (missing path, not a bag, corrupt metadata or storage, a topic
+that is not there, a message we cannot decode) becomes one ``BagReadError`` or
+``DecodeError`` line naming the problem, with rosbags' error chained (``from err``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import sqlite3
+import struct
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer, WriterError
+from rosbags.serde import SerdeError
+
+from radar_calib_ros.errors import BagReadError, DecodeError
+from radar_calib_ros.io import messages as msgs
+from radar_calib_ros.recording import Recording, RecordingBuilder
+
+if TYPE_CHECKING:
+    from rosbags.interfaces import Connection
+    from rosbags.typesys.store import Typestore
+
+    from radar_calib_ros.config import CalibConfig
+
+__all__ = ['RADAR_TYPES', 'ROLE_TYPES', 'radar_topics', 'read_recording', 'select_topics',
+           'write_bag']
+
+#: Message types accepted per role.
+RADAR_TYPES = (msgs.POINTCLOUD2, msgs.RADARSCAN)
+ROLE_TYPES: dict[str, tuple[str, ...]] = {
+    'radar': RADAR_TYPES, 'navsat': (msgs.NAVSATFIX,), 'odom': (msgs.ODOMETRY,)}
+_ROLE_PARAMETER = {'radar': 'radar_topic', 'navsat': 'navsat_topic', 'odom': 'odom_topic'}
+
+# What a damaged storage file raises inside rosbags' readers besides its own errors: sqlite3
+# for a damaged database, struct/EOF/Value errors from the mcap record parser.
+_STORAGE_ERRORS = (ReaderError, AnyReaderError, SerdeError, sqlite3.DatabaseError,
+                   struct.error, EOFError, ValueError, KeyError, IndexError, UnicodeError)
+_PROGRESS_EVERY = 1000
+
+
+# --- topics ------------------------------------------------------------------------------
+
+def _listing(topics: Mapping[str, str]) -> str:
+    return ', '.join(f'{t} ({msgtype})' for t, msgtype in sorted(topics.items())) or 'none'
+
+
+def _same_topic(a: str, b: str) -> bool:
+    return a.lstrip('/') == b.lstrip('/')
+
+
+def select_topics(topics: Mapping[str, str], config: CalibConfig) -> dict[str, str | None]:
+    """The bag topic of each role: ``'radar'``, ``'navsat'`` and ``'odom'``.
+
+    A topic parameter (``radar_topic``, ...) matches with or without its leading '/'. When
+    the parameter was not set explicitly (``config.explicit``) and its default name is not
+    in the bag, the topic is picked by message type. An explicitly empty parameter turns
+    that role off (None).
+
+    Parameters
+    ----------
+    topics : mapping of str to str
+        Topic name -> message type, of the bag.
+    config : CalibConfig
+
+    Returns
+    -------
+    dict of str to str or None
+        The chosen topic per role; None when the bag has none (radar never).
+
+    Raises
+    ------
+    BagReadError
+        A requested topic is not in the bag (the message lists those there) or has the wrong
+        type; several topics of a role's type and no parameter naming one (they are
+        listed); no radar topic at all.
+    """
+    chosen: dict[str, str | None] = {}
+    for role, parameter in _ROLE_PARAMETER.items():
+        wanted: str = getattr(config, parameter)
+        explicit = parameter in config.explicit
+        accepted = ROLE_TYPES[role]
+        type_names = ' or '.join(accepted)
+        if explicit and not wanted:
+            chosen[role] = None
+            continue
+        named = [t for t in topics if _same_topic(t, wanted)]
+        if named and topics[named[0]] in accepted:
+            chosen[role] = named[0]
+            continue
+        if explicit:
+            if named:
+                raise BagReadError(f'{parameter} {wanted!r} has type {topics[named[0]]}, '
+                                   f'expected {type_names}')
+            raise BagReadError(f'{parameter} {wanted!r} is not in the bag; topics there: '
+                               f'{_listing(topics)}')
+        candidates = sorted(t for t, msgtype in topics.items() if msgtype in accepted)
+        if len(candidates) > 1:
+            raise BagReadError(f'several {type_names} topics and no {parameter} naming one: '
+                               f'{", ".join(candidates)}; set {parameter}')
+        chosen[role] = candidates[0] if candidates else None
+    if chosen['radar'] is None:
+        raise BagReadError(f'no radar topic ({" or ".join(RADAR_TYPES)}) in the bag; topics '
+                           f'there: {_listing(topics)}')
+    return chosen
+
+
+# --- reading -----------------------------------------------------------------------------
+
+def _check_bag_path(path: Path) -> None:
+    if not path.exists():
+        raise BagReadError(f'bag {str(path)!r} does not exist')
+    if path.is_dir() and not (path / 'metadata.yaml').is_file():
+        raise BagReadError(f'{str(path)!r} is not a rosbag2 bag (no metadata.yaml in it)')
+
+
+@contextmanager
+def _open_reader(path: Path) -> Iterator[AnyReader]:
+    """AnyReader over one rosbag2 bag, its errors translated to BagReadError."""
+    _check_bag_path(path)
+    try:
+        reader = AnyReader([path], default_typestore=msgs.get_typestore())
+        reader.open()
+    except PermissionError as err:
+        raise BagReadError(f'reading bag {str(path)!r}: permission denied') from err
+    except (OSError, *_STORAGE_ERRORS) as err:
+        raise BagReadError(f'reading bag {str(path)!r}: {_reason(err)}') from err
+    try:
+        yield reader
+    finally:
+        try:
+            reader.close()
+        except (OSError, *_STORAGE_ERRORS):
+            pass  # a close failure after a read failure must not hide the first error
+
+
+def _reason(err: BaseException) -> str:
+    """rosbags' message on one line (sqlite3 and YAML messages can span several)."""
+    text = ' '.join(str(err).split()) or type(err).__name__
+    return text if len(text) <= 300 else text[:297] + '...'
+
+
+def radar_topics(path: str | Path) -> list[str]:
+    """Every radar topic (PointCloud2 or radar_msgs RadarScan) of a bag, sorted.
+
+    Raises
+    ------
+    BagReadError
+        The bag cannot be opened.
+    """
+    with _open_reader(Path(path)) as reader:
+        return sorted({c.topic for c in reader.connections if c.msgtype in RADAR_TYPES})
+
+
+def read_recording(path: str | Path, config: CalibConfig, *,
+                   progress: Callable[[int, int], None] | None = None,
+                   radar_topic: str | None = None) -> Recording:
+    """Read a rosbag2 recording into a :class:`Recording`.
+
+    Parameters
+    ----------
+    path : str or Path
+        A rosbag2 directory (sqlite3 or mcap storage).
+    config : CalibConfig
+        Topics, ``radar.velocity_field`` and what ``RecordingBuilder`` uses.
+    progress : callable(done, total), optional
+        Called every 1000 messages and at the end with the number of messages read
+        and the total on the selected topics.
+    radar_topic : str, optional
+        Read this radar topic, as if ``radar_topic`` had been set explicitly (used to
+        calibrate every radar of a bag in turn, see ``radar_topics``).
+
+    Raises
+    ------
+    BagReadError
+        Missing path, not a bag, corrupt metadata or storage, unknown or ambiguous topics.
+    DecodeError
+        A radar message without the fields we need (prefixed with its topic and stamp).
+    InsufficientDataError
+        No radar frame or no usable vehicle pose (from ``RecordingBuilder.build``).
+    """
+    if radar_topic is not None:
+        config = dataclasses.replace(config, radar_topic=radar_topic,
+                                     explicit=config.explicit | {'radar_topic'})
+    path = Path(path)
+    builder = RecordingBuilder(config)
+    with _open_reader(path) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        chosen = select_topics(topics, config)
+        roles = {topic: role for role, topic in chosen.items() if topic is not None}
+        connections = [c for c in reader.connections if c.topic in roles]
+        total = sum(c.msgcount for c in connections)
+        velocity_field = config.radar.velocity_field
+        done = 0
+        for connection, msg in _messages(reader, connections, path):
+            _add_message(builder, roles[connection.topic], connection, msg, velocity_field)
+            done += 1
+            if progress is not None and done % _PROGRESS_EVERY == 0:
+                progress(done, total)
+        if progress is not None:
+            progress(done, total)
+    return builder.build()
+
+
+def _messages(reader: AnyReader, connections: list[Connection],
+              path: Path) -> Iterator[tuple[Connection, Any]]:
+    """Deserialised messages of the given connections, storage errors translated."""
+    iterator = reader.messages(connections=connections)
+    while True:
+        try:
+            item = next(iterator, None)
+        except (OSError, *_STORAGE_ERRORS) as err:
+            raise BagReadError(f'reading bag {str(path)!r}: {_reason(err)}') from err
+        if item is None:
+            return
+        connection, _bag_ns, rawdata = item
+        try:
+            msg = reader.deserialize(rawdata, connection.msgtype)
+        except (AnyReaderError, SerdeError, *_STORAGE_ERRORS) as err:
+            raise BagReadError(f'reading bag {str(path)!r}: a {connection.msgtype} message on '
+                               f'{connection.topic} cannot be deserialised: {_reason(err)}'
+                               ) from err
+        yield connection, msg
+
+
+def _add_message(builder: RecordingBuilder, role: str, connection: Connection, msg: Any,
+                 velocity_field: str) -> None:
+    if role == 'radar':
+        try:
+            if connection.msgtype == msgs.RADARSCAN:
+                frame = msgs.decode_radarscan(msg)
+            else:
+                frame = msgs.decode_pointcloud(msg, velocity_field)
+        except DecodeError as err:
+            raise DecodeError(f'{connection.topic} (stamp {msgs.stamp_ns(msg.header)} ns): '
+                              f'{err}') from err
+        builder.add_radar_frame(frame)
+    elif role == 'navsat':
+        builder.add_fix(msgs.decode_navsatfix(msg))
+    else:
+        builder.add_odometry(msgs.decode_odometry(msg))
+
+
+# --- writing -----------------------------------------------------------------------------
+
+_STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+
+
+def write_bag(path: str | Path, messages: Iterable[tuple[str, str, int, object]], *,
+              storage: str = 'mcap', typestore: Typestore | None = None) -> int:
+    """Write messages to a new rosbag2 directory.
+
+    Parameters
+    ----------
+    path : str or Path
+        The bag directory to create; it must not exist.
+    messages : iterable of (topic, msgtype, stamp_ns, msg)
+        ``msg`` is a message object of ``typestore`` (serialised here) or already
+        serialised CDR ``bytes`` (e.g. from ``rclpy.serialization.serialize_message``).
+        ``stamp_ns`` becomes the bag's receive time.
+    storage : {'mcap', 'sqlite3'}, default='mcap'
+    typestore : Typestore, optional
+        Defaults to ``io.messages.get_typestore()``; it also gives the definitions embedded in
+        the bag.
+
+    Returns
+    -------
+    int
+        Number of messages written.
+
+    Raises
+    ------
+    BagReadError
+        The path exists, or the storage is unknown, or rosbags cannot write.
+    """
+    path = Path(path)
+    if storage not in _STORAGES:
+        raise BagReadError(f'unknown bag storage {storage!r}; use mcap or sqlite3')
+    if path.exists():
+        raise BagReadError(f'{str(path)!r} exists already; not overwriting')
+    store = typestore if typestore is not None else msgs.get_typestore()
+    count = 0
+    try:
+        with Writer(path, version=Writer.VERSION_LATEST,
+                    storage_plugin=_STORAGES[storage]) as writer:
+            connections: dict[tuple[str, str], Connection] = {}
+            for topic, msgtype, stamp, msg in messages:
+                connection = connections.get((topic, msgtype))
+                if connection is None:
+                    connection = writer.add_connection(topic, msgtype, typestore=store)
+                    connections[topic, msgtype] = connection
+                data = msg if isinstance(msg, (bytes, bytearray, memoryview)) else (
+                    store.serialize_cdr(msg, msgtype))
+                writer.write(connection, int(stamp), data)
+                count += 1
+    except (WriterError, OSError) as err:
+        raise BagReadError(f'writing bag {str(path)!r}: {_reason(err)}') from err
+    return count
