@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +19,12 @@ from radar_calib_ros.errors import ConfigError, InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.types import (
     F64, I64, FixSample, OdomSample, PoseSamples, RadarFrame, Targets, VehicleTrack)
+
+
+# rough per-sample Python overhead (list slots, tuple/object headers, boxed floats) [bytes]
+_FRAME_OVERHEAD_BYTES = 200
+_FIX_OVERHEAD_BYTES = 120
+_ODOM_OVERHEAD_BYTES = 400
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,6 +75,8 @@ class RecordingBuilder:
         self._fixes: list[tuple[int, float, float, float]] = []
         self._odoms: list[OdomSample] = []
         self.counters: Counter[str] = Counter()
+        # kept current on every append so that the node can check its memory bound per message
+        self._nbytes = 0
 
     # appending ---------------------------------------------------------------------------
     def add_radar_frame(self, frame: RadarFrame) -> None:
@@ -75,9 +84,12 @@ class RecordingBuilder:
         n = frame.positions_m.shape[0]
         if frame.positions_m.shape != (n, 3) or frame.radial_velocity_mps.shape != (n,):
             raise ValueError('radar frame arrays must have shapes (n, 3) and (n,)')
+        positions = np.asarray(frame.positions_m, np.float64)
+        velocities = np.asarray(frame.radial_velocity_mps, np.float64)
         self._frame_stamps.append(int(frame.stamp_ns))
-        self._frame_positions.append(np.asarray(frame.positions_m, np.float64))
-        self._frame_velocities.append(np.asarray(frame.radial_velocity_mps, np.float64))
+        self._frame_positions.append(positions)
+        self._frame_velocities.append(velocities)
+        self._nbytes += positions.nbytes + velocities.nbytes + _FRAME_OVERHEAD_BYTES
         self.counters['radar_frames'] += 1
         self.counters['targets'] += n
         if frame.dropped_nonfinite:
@@ -94,6 +106,7 @@ class RecordingBuilder:
             self.counters['fixes_invalid'] += 1
             return False
         self._fixes.append((int(fix.stamp_ns), fix.lat_deg, fix.lon_deg, fix.alt_m))
+        self._nbytes += _FIX_OVERHEAD_BYTES
         return True
 
     def add_odometry(self, odom: OdomSample) -> bool:
@@ -105,6 +118,7 @@ class RecordingBuilder:
             self.counters['odometry_invalid'] += 1
             return False
         self._odoms.append(odom)
+        self._nbytes += _ODOM_OVERHEAD_BYTES
         return True
 
     def drop_before(self, stamp_ns: int) -> int:
@@ -119,6 +133,7 @@ class RecordingBuilder:
         self._fixes = [f for f in self._fixes if f[0] >= stamp_ns]
         n_odom = len(self._odoms)
         self._odoms = [o for o in self._odoms if o.stamp_ns >= stamp_ns]
+        self._nbytes = self._count_nbytes()
         return dropped + n_fix - len(self._fixes) + n_odom - len(self._odoms)
 
     def clear(self) -> None:
@@ -140,12 +155,53 @@ class RecordingBuilder:
         return (min(stamps), max(stamps)) if stamps else None
 
     def nbytes(self) -> int:
-        """Approximate memory held by the buffered samples [bytes]."""
+        """Approximate memory held by the buffered samples [bytes] (O(1): kept current)."""
+        return self._nbytes
+
+    def _count_nbytes(self) -> int:
         arrays = sum(p.nbytes + v.nbytes for p, v in zip(self._frame_positions,
                                                          self._frame_velocities))
-        # per-item Python overhead measured roughly: list slot + tuple/object + floats
-        return arrays + 200 * len(self._frame_stamps) + 120 * len(self._fixes) + 400 * len(
-            self._odoms)
+        return (arrays + _FRAME_OVERHEAD_BYTES * len(self._frame_stamps)
+                + _FIX_OVERHEAD_BYTES * len(self._fixes)
+                + _ODOM_OVERHEAD_BYTES * len(self._odoms))
+
+    def sample_counts(self) -> tuple[int, int, int]:
+        """Buffered (radar frames, fixes, odometry samples)."""
+        return len(self._frame_stamps), len(self._fixes), len(self._odoms)
+
+    def snapshot(self) -> RecordingBuilder:
+        """A copy that later appends and drops do not change, made in O(samples) list copies.
+
+        The per-frame arrays are shared, not copied: nothing here ever writes into them. The
+        node takes a snapshot under its buffer lock and builds and calibrates it outside, so
+        subscriptions keep appending meanwhile.
+        """
+        copy = RecordingBuilder(self._config)
+        copy._frame_stamps = list(self._frame_stamps)
+        copy._frame_positions = list(self._frame_positions)
+        copy._frame_velocities = list(self._frame_velocities)
+        copy._fixes = list(self._fixes)
+        copy._odoms = list(self._odoms)
+        copy.counters = Counter(self.counters)
+        copy._nbytes = self._nbytes
+        return copy
+
+    def samples(self) -> Iterator[RadarFrame | FixSample | OdomSample]:
+        """Every buffered sample, in stamp order (radar velocities as received, before
+        ``radar.velocity_sign``; fixes with status 0 since only usable fixes are kept)."""
+        items: list[tuple[int, int, int]] = []
+        items.extend((s, 0, i) for i, s in enumerate(self._frame_stamps))
+        items.extend((f[0], 1, i) for i, f in enumerate(self._fixes))
+        items.extend((o.stamp_ns, 2, i) for i, o in enumerate(self._odoms))
+        items.sort()
+        for stamp, kind, i in items:
+            if kind == 0:
+                yield RadarFrame(stamp, self._frame_positions[i], self._frame_velocities[i])
+            elif kind == 1:
+                _, lat, lon, alt = self._fixes[i]
+                yield FixSample(stamp, lat, lon, alt, 0)
+            else:
+                yield self._odoms[i]
 
     # building ----------------------------------------------------------------------------
     def build(self) -> Recording:
