@@ -29,6 +29,12 @@ def utm_epsg(lat_deg: float, lon_deg: float) -> int:
     if not (-80.0 <= lat_deg <= 84.0):
         raise ConfigError(f'latitude {lat_deg:.4f} deg is outside UTM (80S-84N); set world.epsg')
     zone = int((lon_deg + 180.0) // 6.0) % 60 + 1
+    # the grid's two exceptions: zone 32V widened over south-west Norway, and Svalbard's
+    # zones 31X-37X (32X, 34X, 36X do not exist)
+    if 56.0 <= lat_deg < 64.0 and 3.0 <= lon_deg < 12.0:
+        zone = 32
+    elif lat_deg >= 72.0 and 0.0 <= lon_deg < 42.0:
+        zone = 31 if lon_deg < 9.0 else 33 if lon_deg < 21.0 else 35 if lon_deg < 33.0 else 37
     return (32600 if lat_deg >= 0.0 else 32700) + zone
 
 

@@ -55,20 +55,20 @@ _PACKAGE_NAME = 'radar_calib_ros'
 
 # --- typestore ---------------------------------------------------------------------------
 
-def msg_schemas_dir() -> Path:
+def msg_schemas_dir(start: Path | None = None) -> Path:
     """Directory holding our extra ``.msg`` definitions (``msg_schemas/``).
 
     A source checkout or editable install has it next to the package; a colcon or pip
     install puts it under ``<prefix>/share/radar_calib_ros/msg_schemas`` (setup.py
     ``data_files``), where ``<prefix>`` is an ancestor of the installed package. Walking up
-    from this file finds either without relying on ``sys.prefix``.
+    from this file (or ``start``) finds either without relying on ``sys.prefix``.
 
     Raises
     ------
     FileNotFoundError
         Neither location exists (a broken install).
     """
-    here = Path(__file__).resolve().parent
+    here = (start or Path(__file__)).resolve().parent
     tried = []
     for ancestor in here.parents:
         for candidate in (ancestor / 'msg_schemas',
