@@ -1,0 +1,343 @@
+"""io.bag: write/read round trips in both storages, topic selection, and every bad input."""
+from __future__ import annotations
+
+import math
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.errors import BagReadError, DecodeError
+from radar_calib_ros.io import messages as m
+from radar_calib_ros.io.bag import radar_topics, read_recording, select_topics, write_bag
+from radar_calib_ros.io.geo import LocalFrame
+
+T0 = 1_720_000_000_000_000_000
+LAT0, LON0, ALT0 = 48.137, 11.575, 520.0
+
+
+def scene(seed: int = 0, n_frames: int = 15, n_poses: int = 50) -> dict[str, Any]:
+    """Radar frames (float64 targets) and a vehicle driving a 20 m circle at 10 m/s."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for i in range(n_frames):
+        n = int(rng.integers(0, 12))
+        frames.append((T0 + i * 66_666_667 + int(rng.integers(-2_000_000, 2_000_000)),
+                       rng.uniform(-50, 50, size=(n, 3)), rng.normal(0, 5, n)))
+    stamps = T0 - 100_000_000 + np.arange(n_poses, dtype=np.int64) * 20_000_000
+    t = (stamps - stamps[0]) * 1e-9
+    angle = 0.5 * t  # 10 m/s on a 20 m radius
+    local = np.column_stack([20 * np.cos(angle), 20 * np.sin(angle), 0.01 * t])
+    # the first fix is the local frame's origin: shift so that it sits at (LAT0, LON0)
+    local = local - local[0]
+    frame = LocalFrame.at(LAT0, LON0)
+    lat, lon, alt = frame.local_to_geodetic(local)
+    yaw_true = angle + math.pi / 2
+    return {'frames': frames, 'stamps': stamps, 'lat': lat, 'lon': lon, 'alt': alt + ALT0,
+            'yaw_true': yaw_true, 'speed': 10.0, 'yaw_rate': 0.5}
+
+
+def bag_messages(ts: Any, s: dict[str, Any], *, radar_topic: str = '/radar/points',
+                 bag_delay_ns: int = 0, layout: str = 'xyz') -> Iterator[tuple[str, str, int,
+                                                                                 object]]:
+    for stamp, positions, velocity in s['frames']:
+        yield (radar_topic, m.POINTCLOUD2, stamp + bag_delay_ns,
+               m.encode_pointcloud(ts, stamp, 'radar', positions, velocity, dtype=np.float64,
+                                   layout=layout))
+    for i, stamp in enumerate(s['stamps']):
+        stamp = int(stamp)
+        yield ('/vehicle/fix', m.NAVSATFIX, stamp + bag_delay_ns,
+               m.encode_navsatfix(ts, stamp, 'gnss', s['lat'][i], s['lon'][i], s['alt'][i]))
+        yaw = s['yaw_true'][i]
+        yield ('/vehicle/odom', m.ODOMETRY, stamp + bag_delay_ns,
+               m.encode_odometry(ts, stamp, 'map', 'base_link', (0, 0, 0),
+                                 (0, 0, math.sin(yaw / 2), math.cos(yaw / 2)),
+                                 (s['speed'], 0, 0), s['yaw_rate']))
+
+
+@pytest.fixture(scope='module')
+def ts() -> Any:
+    return m.get_typestore()
+
+
+@pytest.fixture(scope='module')
+def good_bags(tmp_path_factory: pytest.TempPathFactory, ts: Any) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp('bags')
+    s = scene()
+    return {storage: _write(root / storage, ts, s, storage=storage)
+            for storage in ('mcap', 'sqlite3')}
+
+
+def _write(path: Path, ts: Any, s: dict[str, Any], **kwargs: Any) -> Path:
+    storage = kwargs.pop('storage', 'mcap')
+    write_bag(path, bag_messages(ts, s, **kwargs), storage=storage, typestore=ts)
+    return path
+
+
+# --- round trips -------------------------------------------------------------------------
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_round_trip_exact_targets_and_poses(tmp_path: Path, ts: Any, storage: str) -> None:
+    s = scene(seed=1)
+    # bag receive times 0.3 s late and messages written radar-first: the reader must use
+    # header stamps and sort
+    path = _write(tmp_path / 'bag', ts, s, storage=storage, bag_delay_ns=300_000_000)
+    seen: list[tuple[int, int]] = []
+    rec = read_recording(path, CalibConfig(), progress=lambda d, t: seen.append((d, t)))
+    total = len(s['frames']) + 2 * len(s['stamps'])
+    assert seen[-1] == (total, total)
+
+    order = np.argsort([f[0] for f in s['frames']], kind='stable')
+    np.testing.assert_array_equal(rec.frame_stamps_ns, [s['frames'][i][0] for i in order])
+    np.testing.assert_array_equal(rec.targets.positions_m,
+                                  np.concatenate([s['frames'][i][1] for i in order]))
+    np.testing.assert_array_equal(rec.targets.radial_velocity_mps,
+                                  np.concatenate([s['frames'][i][2] for i in order]))
+    np.testing.assert_array_equal(
+        rec.targets.frame_index, np.repeat(np.arange(len(order)),
+                                           [len(s['frames'][i][2]) for i in order]))
+    assert rec.counters['radar_frames'] == len(s['frames'])
+
+    np.testing.assert_array_equal(rec.vehicle.stamps_ns, s['stamps'])
+    frame = LocalFrame.at(LAT0, LON0)
+    assert (rec.frame.lat0_deg, rec.frame.lon0_deg, rec.frame.epsg) == (LAT0, LON0, 32632)
+    np.testing.assert_allclose(rec.vehicle.positions_m,
+                               frame.geodetic_to_local(s['lat'], s['lon'], s['alt']),
+                               rtol=0, atol=1e-9)
+    expected_yaw = frame.true_yaw_to_local(s['yaw_true'], s['lat'], s['lon'])
+    error = (rec.vehicle.yaw_rad - expected_yaw + np.pi) % (2 * np.pi) - np.pi
+    assert np.abs(error).max() < 1e-9
+    np.testing.assert_allclose(np.hypot(*rec.vehicle.velocities_mps[:, :2].T), 10.0)
+    np.testing.assert_allclose(rec.vehicle.yaw_rate_rps, 0.5)
+
+
+def test_spherical_and_radarscan_inputs(tmp_path: Path, ts: Any) -> None:
+    s = scene(seed=2)
+    rec_xyz = read_recording(_write(tmp_path / 'xyz', ts, s), CalibConfig())
+    rec_sph = read_recording(_write(tmp_path / 'sph', ts, s, layout='spherical'),
+                             CalibConfig())
+    np.testing.assert_allclose(rec_sph.targets.positions_m, rec_xyz.targets.positions_m,
+                               atol=1e-9)
+    # the same frames as radar_msgs/RadarScan (float32 returns)
+    ret = ts.types['radar_msgs/msg/RadarReturn']
+
+    def scans() -> Iterator[tuple[str, str, int, object]]:
+        for stamp, positions, velocity in s['frames']:
+            r = np.linalg.norm(positions, axis=1)
+            returns = [ret(range=float(r[k]),
+                           azimuth=float(np.arctan2(positions[k, 1], positions[k, 0])),
+                           elevation=float(np.arcsin(positions[k, 2] / r[k])),
+                           doppler_velocity=float(velocity[k]), amplitude=0.0)
+                       for k in range(len(r))]
+            header = m.encode_navsatfix(ts, stamp, 'radar', 0, 0, 0).header
+            yield 'scan', m.RADARSCAN, stamp, ts.types[m.RADARSCAN](header=header,
+                                                                     returns=returns)
+        for item in bag_messages(ts, s):
+            if item[1] != m.POINTCLOUD2:
+                yield item
+
+    write_bag(tmp_path / 'scan', scans(), typestore=ts)
+    rec_scan = read_recording(tmp_path / 'scan', CalibConfig())
+    np.testing.assert_allclose(rec_scan.targets.positions_m, rec_xyz.targets.positions_m,
+                               atol=1e-4)
+
+
+def test_radar_topics_and_explicit_radar_topic(tmp_path: Path, ts: Any) -> None:
+    s1, s2 = scene(seed=3), scene(seed=4)
+
+    def two() -> Iterator[tuple[str, str, int, object]]:
+        yield from bag_messages(ts, s1, radar_topic='/radar/front')
+        for stamp, positions, velocity in s2['frames']:
+            yield ('/radar/rear', m.POINTCLOUD2, stamp,
+                   m.encode_pointcloud(ts, stamp, 'rear', positions, velocity,
+                                       dtype=np.float64))
+
+    write_bag(tmp_path / 'two', two(), typestore=ts)
+    assert radar_topics(tmp_path / 'two') == ['/radar/front', '/radar/rear']
+    with pytest.raises(BagReadError, match='several .*PointCloud2.*: /radar/front, '
+                       '/radar/rear; set radar_topic'):
+        read_recording(tmp_path / 'two', CalibConfig())
+    rear = read_recording(tmp_path / 'two', CalibConfig(), radar_topic='radar/rear')
+    np.testing.assert_array_equal(rear.targets.positions_m,
+                                  np.concatenate([f[1] for f in s2['frames']]))
+    config = CalibConfig.from_mapping({'radar_topic': 'radar/front'})
+    front = read_recording(tmp_path / 'two', config)
+    np.testing.assert_array_equal(front.targets.positions_m,
+                                  np.concatenate([f[1] for f in s1['frames']]))
+
+
+def test_write_bag_accepts_serialised_messages(tmp_path: Path, ts: Any) -> None:
+    s = scene(seed=5)
+    raw = ((topic, msgtype, stamp, bytes(ts.serialize_cdr(msg, msgtype)))
+           for topic, msgtype, stamp, msg in bag_messages(ts, s))
+    count = write_bag(tmp_path / 'raw', raw, storage='sqlite3', typestore=ts)
+    assert count == len(s['frames']) + 2 * len(s['stamps'])
+    rec = read_recording(tmp_path / 'raw', CalibConfig())
+    assert len(rec.targets) == sum(len(f[2]) for f in s['frames'])
+
+
+# --- topic selection ---------------------------------------------------------------------
+
+TOPICS = {'/radar/points': m.POINTCLOUD2, '/vehicle/fix': m.NAVSATFIX,
+          '/vehicle/odom': m.ODOMETRY, '/lidar': 'sensor_msgs/msg/Imu'}
+
+
+def test_select_defaults_with_and_without_slash() -> None:
+    assert select_topics(TOPICS, CalibConfig()) == {
+        'radar': '/radar/points', 'navsat': '/vehicle/fix', 'odom': '/vehicle/odom'}
+    bare = {k.lstrip('/'): v for k, v in TOPICS.items()}
+    assert select_topics(bare, CalibConfig())['radar'] == 'radar/points'
+    config = CalibConfig.from_mapping({'navsat_topic': '/vehicle/fix'})
+    assert select_topics(bare, config)['navsat'] == 'vehicle/fix'
+
+
+def test_select_by_type_when_default_absent() -> None:
+    topics = {'/sensors/radar0': m.POINTCLOUD2, '/gnss': m.NAVSATFIX, '/ins': m.ODOMETRY}
+    assert select_topics(topics, CalibConfig()) == {
+        'radar': '/sensors/radar0', 'navsat': '/gnss', 'odom': '/ins'}
+    assert select_topics({'/r': m.RADARSCAN}, CalibConfig()) == {
+        'radar': '/r', 'navsat': None, 'odom': None}
+
+
+def test_select_default_name_with_other_type_falls_back_to_type() -> None:
+    topics = {'/radar/points': 'sensor_msgs/msg/Imu', '/r': m.POINTCLOUD2}
+    assert select_topics(topics, CalibConfig())['radar'] == '/r'
+
+
+def test_select_ambiguous_lists_candidates() -> None:
+    topics = dict(TOPICS, **{'/gps/a': m.NAVSATFIX, '/gps/b': m.NAVSATFIX})
+    del topics['/vehicle/fix']
+    with pytest.raises(BagReadError, match='several sensor_msgs/msg/NavSatFix topics and no '
+                       'navsat_topic naming one: /gps/a, /gps/b'):
+        select_topics(topics, CalibConfig())
+    config = CalibConfig.from_mapping({'navsat_topic': 'gps/b'})
+    assert select_topics(topics, config)['navsat'] == '/gps/b'
+
+
+def test_select_explicit_missing_lists_topics() -> None:
+    config = CalibConfig.from_mapping({'radar_topic': '/front_radar'})
+    with pytest.raises(BagReadError, match=r"radar_topic '/front_radar' is not in the bag; "
+                       r'topics there: /lidar \(sensor_msgs/msg/Imu\), /radar/points'):
+        select_topics(TOPICS, config)
+
+
+def test_select_explicit_wrong_type() -> None:
+    config = CalibConfig.from_mapping({'odom_topic': '/lidar'})
+    with pytest.raises(BagReadError, match="odom_topic '/lidar' has type sensor_msgs/msg/Imu"):
+        select_topics(TOPICS, config)
+
+
+def test_select_explicit_empty_turns_role_off() -> None:
+    config = CalibConfig.from_mapping({'odom_topic': ''})
+    assert select_topics(TOPICS, config)['odom'] is None
+
+
+def test_select_no_radar() -> None:
+    with pytest.raises(BagReadError, match='no radar topic'):
+        select_topics({'/vehicle/fix': m.NAVSATFIX}, CalibConfig())
+
+
+# --- bad input ---------------------------------------------------------------------------
+
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _storage_file(bag: Path) -> Path:
+    return next(p for p in bag.iterdir() if p.suffix in ('.mcap', '.db3'))
+
+
+def test_missing_path(tmp_path: Path) -> None:
+    with pytest.raises(BagReadError, match='does not exist'):
+        read_recording(tmp_path / 'nothing', CalibConfig())
+
+
+def test_directory_that_is_not_a_bag(tmp_path: Path) -> None:
+    (tmp_path / 'notes.txt').write_text('hello')
+    with pytest.raises(BagReadError, match='is not a rosbag2 bag'):
+        read_recording(tmp_path, CalibConfig())
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('text', ['rosbag2_bagfile_information: {version: [\n',
+                                  'just a string\n', 'other_key: 1\n'])
+def test_corrupt_metadata(tmp_path: Path, good_bags: dict[str, Path], storage: str,
+                          text: str) -> None:
+    bag = _copy(good_bags[storage], tmp_path / 'bag')
+    (bag / 'metadata.yaml').write_text(text)
+    with pytest.raises(BagReadError, match='reading bag') as info:
+        read_recording(bag, CalibConfig())
+    assert '\n' not in str(info.value) and info.value.__cause__ is not None
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('damage', ['garbage', 'truncated', 'empty'])
+def test_corrupt_storage_file(tmp_path: Path, good_bags: dict[str, Path], storage: str,
+                              damage: str) -> None:
+    bag = _copy(good_bags[storage], tmp_path / 'bag')
+    target = _storage_file(bag)
+    data = target.read_bytes()
+    if damage == 'garbage':
+        data = np.random.default_rng(0).integers(0, 256, len(data), dtype=np.uint8).tobytes()
+    elif damage == 'truncated':
+        data = data[:len(data) // 2]
+    else:
+        data = b''
+    target.write_bytes(data)
+    with pytest.raises(BagReadError, match='reading bag') as info:
+        read_recording(bag, CalibConfig())
+    assert '\n' not in str(info.value)
+
+
+def test_missing_storage_file(tmp_path: Path, good_bags: dict[str, Path]) -> None:
+    bag = _copy(good_bags['sqlite3'], tmp_path / 'bag')
+    _storage_file(bag).unlink()
+    with pytest.raises(BagReadError, match='missing'):
+        read_recording(bag, CalibConfig())
+
+
+def _bag_with_cloud(tmp_path: Path, ts: Any, cloud: Any) -> Path:
+    s = scene(seed=6)
+    items = [('/radar/points', m.POINTCLOUD2, T0, cloud)]
+    items += [i for i in bag_messages(ts, s) if i[1] != m.POINTCLOUD2]
+    write_bag(tmp_path / 'bag', items, typestore=ts)
+    return tmp_path / 'bag'
+
+
+def test_truncated_pointcloud(tmp_path: Path, ts: Any) -> None:
+    cloud = m.encode_pointcloud(ts, T0, 'radar', np.ones((10, 3)), np.ones(10))
+    cloud.data = cloud.data[:-5]
+    bag = _bag_with_cloud(tmp_path, ts, cloud)
+    with pytest.raises(DecodeError, match=r'^/radar/points \(stamp \d+ ns\): PointCloud2 data '
+                       'has 155 bytes, fewer than width 10 x height 1 x point_step 16 = 160'):
+        read_recording(bag, CalibConfig())
+
+
+def test_pointcloud_without_velocity(tmp_path: Path, ts: Any) -> None:
+    cloud = m.encode_pointcloud(ts, T0, 'radar', np.ones((4, 3)), np.ones(4),
+                                velocity_field='speed', extra_fields={'rcs': np.ones(4)})
+    bag = _bag_with_cloud(tmp_path, ts, cloud)
+    with pytest.raises(DecodeError, match='fields found: x, y, z, speed, rcs'):
+        read_recording(bag, CalibConfig())
+    config = CalibConfig.from_mapping({'radar': {'velocity_field': 'speed'}})
+    assert len(read_recording(bag, config).targets) == 4
+
+
+def test_requested_topic_not_in_bag(good_bags: dict[str, Path]) -> None:
+    config = CalibConfig.from_mapping({'radar_topic': '/radar/rear'})
+    with pytest.raises(BagReadError, match="radar_topic '/radar/rear' is not in the bag; "
+                       r'topics there: /radar/points \(sensor_msgs/msg/PointCloud2\), '
+                       '/vehicle/fix'):
+        read_recording(good_bags['mcap'], config)
+
+
+def test_write_bag_refuses_existing_path(tmp_path: Path) -> None:
+    with pytest.raises(BagReadError, match='exists already'):
+        write_bag(tmp_path, [])
+    with pytest.raises(BagReadError, match="unknown bag storage 'rosbag1'"):
+        write_bag(tmp_path / 'new', [], storage='rosbag1')
