@@ -1,0 +1,242 @@
+"""recording: RecordingBuilder (frames, fixes, odometry, headings) and interpolate_poses."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyproj
+import pytest
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.errors import ConfigError, InsufficientDataError
+from radar_calib_ros.io.geo import LocalFrame
+from radar_calib_ros.recording import RecordingBuilder, interpolate_poses
+from radar_calib_ros.types import FixSample, OdomSample, RadarFrame
+
+T0 = 1_720_000_000_000_000_000
+LAT0, LON0 = 48.137, 11.575
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _odom(stamp: int, yaw_true: float, speed: float = 0.0, yaw_rate: float = 0.0,
+          position: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> OdomSample:
+    return OdomSample(int(stamp), position, (0.0, 0.0, math.sin(yaw_true / 2),
+                                             math.cos(yaw_true / 2)), (speed, 0.0, 0.0),
+                      yaw_rate)
+
+
+def _one_frame(builder: RecordingBuilder) -> None:
+    builder.add_radar_frame(RadarFrame(T0, np.zeros((1, 3)), np.zeros(1)))
+
+
+def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: float = 50.0,
+                   duration_s: float = 20.0) -> tuple[RecordingBuilder, LocalFrame, float]:
+    """Fixes and odometry of a vehicle on a circle around the local origin's neighbour,
+    exact (noise-free), starting at angle 0; returns (builder, frame, angular rate)."""
+    frame = LocalFrame.at(LAT0, LON0)
+    omega = speed_mps / radius_m
+    t = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    angle = omega * t
+    local = np.column_stack([radius_m * np.cos(angle) - radius_m, radius_m * np.sin(angle),
+                             np.zeros_like(t)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    yaw_local = angle + np.pi / 2
+    # the odometry reports yaw against true north: add back the local grid's convergence
+    yaw_true = yaw_local + frame.local_convergence_rad(lat, lon)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i, ti in enumerate(t):
+        stamp = T0 + int(round(ti * 1e9))
+        builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2))
+        builder.add_odometry(_odom(stamp, yaw_true[i], speed_mps, omega))
+    return builder, frame, omega
+
+
+def test_interpolation_at_15mps_hits_true_pose() -> None:
+    radius, speed = 30.0, 15.0
+    builder, _, omega = circle_builder(radius, speed)
+    vehicle = builder.build().vehicle
+    rng = np.random.default_rng(0)
+    stamps = T0 + rng.integers(0, int(19.9e9), 2000)
+    poses = interpolate_poses(vehicle, stamps, max_gap_s=0.5)
+    assert poses.valid.all()
+    t = (stamps - T0) * 1e-9
+    angle = omega * t
+    truth = np.column_stack([radius * np.cos(angle) - radius, radius * np.sin(angle)])
+    position_error = np.linalg.norm(poses.positions_m[:, :2] - truth, axis=1)
+    assert position_error.max() < 0.01
+    heading_error = _wrap(poses.yaw_rad - (angle + np.pi / 2))
+    assert np.abs(heading_error).max() < 1e-5
+    # the queries cross +-pi (the heading wraps on this circle) ...
+    crossing = np.abs(_wrap(angle + np.pi / 2 - np.pi)) < 0.02
+    assert crossing.sum() > 5
+    # ... and the nearest pose sample would be off by up to 15 cm at 15 m/s
+    nearest = np.clip(np.round((stamps - T0) / 20e6).astype(int), 0, len(vehicle) - 1)
+    assert np.linalg.norm(vehicle.positions_m[nearest, :2] - truth, axis=1).max() > 0.1
+    np.testing.assert_allclose(np.linalg.norm(poses.velocities_mps[:, :2], axis=1), speed,
+                               rtol=1e-3)
+
+
+def test_interpolation_validity_outside_and_across_gaps() -> None:
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    frame = LocalFrame.at(LAT0, LON0)
+    local = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    stamps = T0 + np.array([0, 1, 2, 3, 4, 10, 11, 12, 13, 14]) * 100_000_000
+    for i in range(10):
+        builder.add_fix(FixSample(int(stamps[i]), lat[i], lon[i], alt[i], 0))
+    vehicle = builder.build().vehicle
+    query = T0 + np.array([-1, 5, 35, 70, 125, 141]) * 10_000_000
+    poses = interpolate_poses(vehicle, query, max_gap_s=0.5)
+    np.testing.assert_array_equal(poses.valid, [False, True, True, False, True, False])
+    assert poses.positions_m[1, 0] == pytest.approx(0.5, abs=1e-6)
+
+
+def test_odometry_yaw_true_north_to_local_grid() -> None:
+    """Along a geodesic 3 km eastwards the local grid north turns by ~0.03 deg against true
+    north; the recorded yaw must follow the grid direction of travel, not the true one."""
+    geod = pyproj.Geod(ellps='WGS84')
+    distances = np.arange(0.0, 3000.0, 3.0)  # 5 Hz at 15 m/s
+    lon, lat, _ = geod.fwd(np.full(distances.size, LON0), np.full(distances.size, LAT0),
+                           np.full(distances.size, 80.0), distances)
+    lon, lat = np.asarray(lon), np.asarray(lat)
+    azimuth, back, _ = geod.inv(lon[:-1], lat[:-1], lon[1:], lat[1:])
+    true_azimuth = np.append(azimuth, np.asarray(back)[-1] - 180.0)
+    yaw_true = np.radians(90.0 - true_azimuth)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    stamps = T0 + (distances / 15.0 * 1e9).astype(np.int64)
+    for i in range(distances.size):
+        builder.add_fix(FixSample(int(stamps[i]), lat[i], lon[i], 500.0, 2))
+        builder.add_odometry(_odom(int(stamps[i]), yaw_true[i], 15.0))
+    rec = builder.build()
+    p = rec.vehicle.positions_m
+    grid_direction = np.arctan2(p[2:, 1] - p[:-2, 1], p[2:, 0] - p[:-2, 0])
+    error = _wrap(rec.vehicle.yaw_rad[1:-1] - grid_direction)
+    assert np.abs(error).max() < 1e-6
+    assert np.abs(_wrap(yaw_true[1:-1] - grid_direction)).max() > 3e-4
+
+
+def test_navsatfix_only_course_over_ground() -> None:
+    """Heading from the course over ground: right while driving (through +-pi), held while
+    stopped, despite 2 cm position noise."""
+    rng = np.random.default_rng(1)
+    frame = LocalFrame.at(LAT0, LON0)
+    heading = math.radians(179.0)
+    direction = np.array([math.cos(heading), math.sin(heading)])
+    t = np.arange(0.0, 30.0, 0.02)
+    # 10 s at 10 m/s, 10 s standing, 10 s on a turn through -pi (yaw rate -0.05 rad/s)
+    s = np.where(t < 10, 10 * t, 100.0)
+    xy = s[:, None] * direction
+    turning = t >= 20
+    yaw_turn = heading - 0.05 * (t[turning] - 20)
+    radius = 10.0 / 0.05
+    centre = xy[-1] + radius * np.array([math.sin(heading), -math.cos(heading)])
+    xy[turning] = centre + radius * np.column_stack([-np.sin(yaw_turn), np.cos(yaw_turn)])
+    truth = np.full(t.size, heading)
+    truth[turning] = yaw_turn
+    local = np.column_stack([xy + rng.normal(0, 0.02, xy.shape), np.zeros(t.size)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i in range(t.size):
+        builder.add_fix(FixSample(T0 + int(round(t[i] * 1e9)), lat[i], lon[i], alt[i], 2))
+    vehicle = builder.build().vehicle
+    inner = (t > 0.5) & (t < 29.5)
+    error = np.degrees(np.abs(_wrap(vehicle.yaw_rad - truth)))[inner]
+    assert error.max() < 1.5
+    standing = (t > 10.5) & (t < 19.5)
+    assert np.linalg.norm(vehicle.velocities_mps[standing, :2], axis=1).max() < 0.5
+
+
+def test_invalid_fixes_and_odometry_dropped_and_counted() -> None:
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    frame = LocalFrame.at(LAT0, LON0)
+    lat, lon, alt = frame.local_to_geodetic(np.column_stack([np.arange(6.0), np.zeros(6),
+                                                             np.zeros(6)]))
+    kept = [builder.add_fix(FixSample(T0 + i * 10**8, lat[i], lon[i], alt[i], status))
+            for i, status in enumerate([2, -1, 0, 1, 2, -1])]
+    assert kept == [True, False, True, True, True, False]
+    assert not builder.add_fix(FixSample(T0 + 7 * 10**8, math.nan, LON0, 0.0, 2))
+    assert not builder.add_fix(FixSample(T0 + 8 * 10**8, LAT0, LON0, math.inf, 2))
+    assert not builder.add_fix(FixSample(T0 + 9 * 10**8, 91.0, LON0, 0.0, 2))
+    assert builder.add_odometry(_odom(T0, 0.3))
+    assert not builder.add_odometry(_odom(T0 + 1, math.nan))
+    bad_q = OdomSample(T0 + 2, (0, 0, 0), (0.0, 0.0, 0.0, 0.0), (0, 0, 0), 0.0)
+    assert not builder.add_odometry(bad_q)
+    assert builder.add_odometry(_odom(T0 + 10**9, 0.3))
+    rec = builder.build()
+    assert rec.counters['fixes'] == 9 and rec.counters['fixes_no_fix'] == 2
+    assert rec.counters['fixes_invalid'] == 3
+    assert rec.counters['odometry'] == 4 and rec.counters['odometry_invalid'] == 2
+    np.testing.assert_array_equal(rec.vehicle.stamps_ns, T0 + np.array([0, 2, 3, 4]) * 10**8)
+    np.testing.assert_allclose(rec.vehicle.positions_m[:, 0], [0, 2, 3, 4], atol=1e-6)
+
+
+def test_radar_frames_sorted_counted_and_signed() -> None:
+    config = CalibConfig.from_mapping({'radar': {'velocity_sign': -1.0}})
+    builder = RecordingBuilder(config)
+    builder.add_radar_frame(RadarFrame(T0 + 200, np.ones((2, 3)), np.array([1.0, 2.0]), 1))
+    builder.add_radar_frame(RadarFrame(T0 + 100, np.zeros((0, 3)), np.zeros(0)))
+    builder.add_radar_frame(RadarFrame(T0, np.full((1, 3), 5.0), np.array([3.0]), 2))
+    frame = LocalFrame.at(LAT0, LON0)
+    lat, lon, alt = frame.local_to_geodetic([[0, 0, 0], [1, 0, 0]])
+    builder.add_fix(FixSample(T0, lat[0], lon[0], alt[0], 2))
+    builder.add_fix(FixSample(T0 + 10**9, lat[1], lon[1], alt[1], 2))
+    rec = builder.build()
+    np.testing.assert_array_equal(rec.frame_stamps_ns, [T0, T0 + 100, T0 + 200])
+    np.testing.assert_array_equal(rec.targets.frame_index, [0, 2, 2])
+    np.testing.assert_array_equal(rec.targets.radial_velocity_mps, [-3.0, -1.0, -2.0])
+    np.testing.assert_array_equal(rec.target_stamps_ns, [T0, T0 + 200, T0 + 200])
+    assert rec.counters['radar_frames'] == 3 and rec.counters['targets_nonfinite'] == 3
+    with pytest.raises(ValueError, match='shapes'):
+        builder.add_radar_frame(RadarFrame(T0, np.zeros((2, 2)), np.zeros(2)))
+
+
+def test_build_without_data() -> None:
+    builder = RecordingBuilder(CalibConfig())
+    with pytest.raises(InsufficientDataError, match='no radar frame'):
+        builder.build()
+    _one_frame(builder)
+    builder.add_odometry(_odom(T0, 0.0))
+    with pytest.raises(InsufficientDataError, match='vehicle.odom_is_utm'):
+        builder.build()
+    builder.add_fix(FixSample(T0, LAT0, LON0, 0.0, 2))
+    with pytest.raises(InsufficientDataError, match='only 1 vehicle pose'):
+        builder.build()
+
+
+def test_odometry_positions_in_utm() -> None:
+    frame = LocalFrame.at(LAT0, LON0)
+    local = np.column_stack([np.linspace(0, 50, 11), np.linspace(0, 20, 11), np.zeros(11)])
+    utm = frame.local_to_utm(local)
+    with pytest.raises(ConfigError, match='needs world.epsg'):
+        builder = RecordingBuilder(CalibConfig.from_mapping({'vehicle': {'odom_is_utm': True}}))
+        _one_frame(builder)
+        builder.add_odometry(_odom(T0, 0.0, position=tuple(utm[0])))
+        builder.add_odometry(_odom(T0 + 1, 0.0, position=tuple(utm[1])))
+        builder.build()
+    config = CalibConfig.from_mapping({'vehicle': {'odom_is_utm': True},
+                                       'world': {'epsg': 32632}})
+    builder = RecordingBuilder(config)
+    _one_frame(builder)
+    for i in range(11):
+        builder.add_odometry(_odom(T0 + i * 10**8, 0.4, position=tuple(utm[i])))
+    rec = builder.build()
+    np.testing.assert_allclose(rec.vehicle.positions_m, local, atol=1e-6)
+    assert rec.frame.epsg == 32632
+
+
+def test_drop_before_and_clear() -> None:
+    builder, _, _ = circle_builder(duration_s=2.0)
+    assert builder.n_frames == 1 and builder.n_poses == 200
+    dropped = builder.drop_before(T0 + 10**9)
+    assert dropped == 1 + 50 + 50
+    assert builder.stamp_range_ns() == (T0 + 10**9, T0 + 1_980_000_000)
+    builder.clear()
+    assert builder.n_frames == 0 and builder.n_poses == 0 and builder.stamp_range_ns() is None
