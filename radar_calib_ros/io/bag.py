@@ -300,8 +300,10 @@ def write_bag(path: str | Path, messages: Iterable[tuple[str, str, int, object]]
                 if connection is None:
                     connection = writer.add_connection(topic, msgtype, typestore=store)
                     connections[topic, msgtype] = connection
-                data = msg if isinstance(msg, (bytes, bytearray, memoryview)) else (
-                    store.serialize_cdr(msg, msgtype))
+                if isinstance(msg, (bytes, bytearray, memoryview)):
+                    data: bytes | memoryview = bytes(msg)
+                else:
+                    data = store.serialize_cdr(msg, msgtype)
                 writer.write(connection, int(stamp), data)
                 count += 1
     except (WriterError, OSError) as err:

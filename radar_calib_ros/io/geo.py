@@ -136,8 +136,8 @@ class LocalFrame:
         yaw_utm = yaw_true - c_utm = yaw_local + c_local - c_utm: a rotation about z.
         """
         lat, lon, _ = self.local_to_geodetic(np.reshape(np.asarray(at_local_m, float), (1, 3)))
-        angle = float(self.local_convergence_rad(lat, lon)[0] - self.utm_convergence_rad(lat,
-                                                                                          lon)[0])
+        angle = float(self.local_convergence_rad(lat, lon)[0]
+                      - self.utm_convergence_rad(lat, lon)[0])
         c, s = np.cos(angle), np.sin(angle)
         return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
@@ -148,4 +148,5 @@ def _convergence(proj: pyproj.Proj, lat_deg: ArrayLike, lon_deg: ArrayLike) -> F
     step = 1e-5  # deg of latitude, ~1.1 m: far below any curvature that matters here
     x0, y0 = proj(lon, lat)
     x1, y1 = proj(lon, lat + step)
-    return np.arctan2(np.asarray(x1) - np.asarray(x0), np.asarray(y1) - np.asarray(y0))
+    return np.asarray(np.arctan2(np.asarray(x1) - np.asarray(x0),
+                                 np.asarray(y1) - np.asarray(y0)), np.float64)

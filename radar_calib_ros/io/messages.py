@@ -398,4 +398,3 @@ def encode_odometry(typestore: Typestore, stamp_ns: int, frame_id: str, child_fr
         pose=types['geometry_msgs/msg/PoseWithCovariance'](pose=pose, covariance=np.zeros(36)),
         twist=types['geometry_msgs/msg/TwistWithCovariance'](twist=twist,
                                                              covariance=np.zeros(36)))
-

@@ -41,9 +41,11 @@ def scene(seed: int = 0, n_frames: int = 15, n_poses: int = 50) -> dict[str, Any
             'yaw_true': yaw_true, 'speed': 10.0, 'yaw_rate': 0.5}
 
 
+Item = tuple[str, str, int, object]
+
+
 def bag_messages(ts: Any, s: dict[str, Any], *, radar_topic: str = '/radar/points',
-                 bag_delay_ns: int = 0, layout: str = 'xyz') -> Iterator[tuple[str, str, int,
-                                                                                 object]]:
+                 bag_delay_ns: int = 0, layout: str = 'xyz') -> Iterator[Item]:
     for stamp, positions, velocity in s['frames']:
         yield (radar_topic, m.POINTCLOUD2, stamp + bag_delay_ns,
                m.encode_pointcloud(ts, stamp, 'radar', positions, velocity, dtype=np.float64,
@@ -125,7 +127,7 @@ def test_spherical_and_radarscan_inputs(tmp_path: Path, ts: Any) -> None:
     # the same frames as radar_msgs/RadarScan (float32 returns)
     ret = ts.types['radar_msgs/msg/RadarReturn']
 
-    def scans() -> Iterator[tuple[str, str, int, object]]:
+    def scans() -> Iterator[Item]:
         for stamp, positions, velocity in s['frames']:
             r = np.linalg.norm(positions, axis=1)
             returns = [ret(range=float(r[k]),
@@ -134,8 +136,8 @@ def test_spherical_and_radarscan_inputs(tmp_path: Path, ts: Any) -> None:
                            doppler_velocity=float(velocity[k]), amplitude=0.0)
                        for k in range(len(r))]
             header = m.encode_navsatfix(ts, stamp, 'radar', 0, 0, 0).header
-            yield 'scan', m.RADARSCAN, stamp, ts.types[m.RADARSCAN](header=header,
-                                                                     returns=returns)
+            scan = ts.types[m.RADARSCAN](header=header, returns=returns)
+            yield 'scan', m.RADARSCAN, stamp, scan
         for item in bag_messages(ts, s):
             if item[1] != m.POINTCLOUD2:
                 yield item
@@ -149,7 +151,7 @@ def test_spherical_and_radarscan_inputs(tmp_path: Path, ts: Any) -> None:
 def test_radar_topics_and_explicit_radar_topic(tmp_path: Path, ts: Any) -> None:
     s1, s2 = scene(seed=3), scene(seed=4)
 
-    def two() -> Iterator[tuple[str, str, int, object]]:
+    def two() -> Iterator[Item]:
         yield from bag_messages(ts, s1, radar_topic='/radar/front')
         for stamp, positions, velocity in s2['frames']:
             yield ('/radar/rear', m.POINTCLOUD2, stamp,
