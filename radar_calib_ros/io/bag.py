@@ -118,17 +118,21 @@ def select_topics(topics: Mapping[str, str], config: CalibConfig) -> dict[str, s
 
 # --- reading -----------------------------------------------------------------------------
 
-def _check_bag_path(path: Path) -> None:
+def _check_bag_path(path: Path) -> Path:
+    """The bag directory to open (a path to its metadata.yaml means the directory)."""
+    if path.name == 'metadata.yaml' and path.is_file():
+        path = path.parent
     if not path.exists():
         raise BagReadError(f'bag {str(path)!r} does not exist')
     if path.is_dir() and not (path / 'metadata.yaml').is_file():
         raise BagReadError(f'{str(path)!r} is not a rosbag2 bag (no metadata.yaml in it)')
+    return path
 
 
 @contextmanager
 def _open_reader(path: Path) -> Iterator[AnyReader]:
     """AnyReader over one rosbag2 bag, its errors translated to BagReadError."""
-    _check_bag_path(path)
+    path = _check_bag_path(path)
     try:
         reader = AnyReader([path], default_typestore=msgs.get_typestore())
         reader.open()

@@ -172,6 +172,11 @@ def test_radar_topics_and_explicit_radar_topic(tmp_path: Path, ts: Any) -> None:
                                   np.concatenate([f[1] for f in s1['frames']]))
 
 
+def test_path_to_metadata_yaml_reads_the_bag(good_bags: dict[str, Path]) -> None:
+    rec = read_recording(good_bags['sqlite3'] / 'metadata.yaml', CalibConfig())
+    assert rec.counters['radar_frames'] == len(scene()['frames'])
+
+
 def test_write_bag_accepts_serialised_messages(tmp_path: Path, ts: Any) -> None:
     s = scene(seed=5)
     raw = ((topic, msgtype, stamp, bytes(ts.serialize_cdr(msg, msgtype)))
@@ -263,6 +268,8 @@ def test_directory_that_is_not_a_bag(tmp_path: Path) -> None:
     (tmp_path / 'notes.txt').write_text('hello')
     with pytest.raises(BagReadError, match='is not a rosbag2 bag'):
         read_recording(tmp_path, CalibConfig())
+    with pytest.raises(BagReadError, match=r"reading bag .*notes.txt'"):
+        read_recording(tmp_path / 'notes.txt', CalibConfig())
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
