@@ -203,8 +203,14 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
     names = [*position_names, v_name]
     formats = [order + _numpy_code(name, table[name][1], float_only=name != v_name)
                for name in names]
-    dtype = np.dtype({'names': ['p0', 'p1', 'p2', 'v'], 'formats': formats,
-                      'offsets': [table[name][0] for name in names], 'itemsize': point_step})
+    try:
+        dtype = np.dtype({'names': ['p0', 'p1', 'p2', 'v'], 'formats': formats,
+                          'offsets': [table[name][0] for name in names],
+                          'itemsize': point_step})
+    except (ValueError, OverflowError) as err:
+        # numpy keeps itemsize and offsets in a C int; no real cloud comes near 2 GiB a point
+        raise DecodeError(f'PointCloud2 point_step {point_step} or a field offset is too '
+                          f'large: {err}') from err
     raw = np.frombuffer(msg.data, np.uint8)
     row_bytes = width * point_step
     row_step = int(getattr(msg, 'row_step', row_bytes) or row_bytes)
@@ -223,10 +229,12 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
             raise DecodeError(f'PointCloud2 data has {raw.size} bytes, fewer than width {width}'
                               f' x height {height} x point_step {point_step} = {need}')
         points = np.frombuffer(raw, dtype, count=n)
-    p0 = points['p0'].astype(np.float64)
-    p1 = points['p1'].astype(np.float64)
-    p2 = points['p2'].astype(np.float64)
-    velocity = points['v'].astype(np.float64)
+    with np.errstate(invalid='ignore'):
+        # signalling NaNs (corrupt data) warn when cast; they are dropped below as non-finite
+        p0 = points['p0'].astype(np.float64)
+        p1 = points['p1'].astype(np.float64)
+        p2 = points['p2'].astype(np.float64)
+        velocity = points['v'].astype(np.float64)
     finite = np.isfinite(p0) & np.isfinite(p1) & np.isfinite(p2) & np.isfinite(velocity)
     dropped = int(n - np.count_nonzero(finite))
     if dropped:
