@@ -1,0 +1,645 @@
+"""LiveCalibrator: the node's logic without rclpy, fed with rosbags Jazzy messages."""
+from __future__ import annotations
+
+import copy
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.errors import InsufficientDataError
+from radar_calib_ros.io import messages as msgs
+from radar_calib_ros.io.bag import read_recording
+from radar_calib_ros.live import (
+    BACKWARD_TOLERANCE_NS, CONFIRM_MESSAGES, WARN_THROTTLE_S, LiveCalibrator, replace_config)
+from radar_calib_ros.recording import RecordingBuilder
+from radar_calib_ros.result import load_result
+from radar_calib_ros.types import Extrinsics, FixSample, OdomSample, QualityReport, RadarFrame
+
+T0_NS = 1_700_000_000 * 10**9
+LAT0, LON0, ALT0 = 48.137, 11.575, 520.0
+
+
+@pytest.fixture(scope='module')
+def store() -> Any:
+    return msgs.get_typestore()
+
+
+class LogRecorder:
+    """Stand-in for the node's logger: keeps (severity, message) pairs."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def __call__(self, severity: str, message: str) -> None:
+        self.lines.append((severity, message))
+
+    def count(self, text: str) -> int:
+        return sum(text in message for _, message in self.lines)
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def make_live(tmp_path: Path, *, run: Any = None, clock: FakeClock | None = None,
+              **params: Any) -> tuple[LiveCalibrator, LogRecorder]:
+    values: dict[str, Any] = {'output.path': str(tmp_path / 'result.yaml'),
+                              'output.recording_dir': str(tmp_path / 'recordings')}
+    values.update(params)
+    log = LogRecorder()
+    live = LiveCalibrator(CalibConfig.from_mapping(values), log=log,
+                          run=run or fake_run(), monotonic=clock or FakeClock(),
+                          now_ns=lambda: T0_NS)
+    return live, log
+
+
+def radar_msg(store: Any, stamp_ns: int, n: int = 20, seed: int = 0, **kwargs: Any) -> Any:
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform([5, -20, -5], [80, 20, 0], size=(n, 3))
+    return msgs.encode_pointcloud(store, stamp_ns, 'radar', positions,
+                                  rng.normal(0, 5, n), **kwargs)
+
+
+def fix_msg(store: Any, stamp_ns: int, k: int = 0, status: int = 2) -> Any:
+    return msgs.encode_navsatfix(store, stamp_ns, 'gnss', LAT0 + 1e-6 * k, LON0 + 2e-6 * k,
+                                 ALT0, status=status)
+
+
+def odom_msg(store: Any, stamp_ns: int) -> Any:
+    return msgs.encode_odometry(store, stamp_ns, 'utm', 'base_link', (0, 0, 0),
+                                (0, 0, 0.38268343, 0.92387953), (10, 0, 0), 0.01)
+
+
+def feed(live: LiveCalibrator, store: Any, seconds: float, *, start_ns: int = T0_NS,
+         targets: int = 20) -> None:
+    """Radar at 15 Hz, NavSatFix and Odometry at 50 Hz, interleaved by stamp."""
+    events = []
+    for i in range(int(seconds * 15)):
+        events.append((start_ns + i * 66_666_667, 0, i))
+    for i in range(int(seconds * 50)):
+        events.append((start_ns + i * 20_000_000, 1, i))
+        events.append((start_ns + i * 20_000_000 + 1, 2, i))
+    for stamp, kind, i in sorted(events):
+        if kind == 0:
+            live.on_radar(radar_msg(store, stamp, targets, seed=i))
+        elif kind == 1:
+            live.on_navsat(fix_msg(store, stamp, i))
+        else:
+            live.on_odometry(odom_msg(store, stamp))
+
+
+def fake_result(recording: Any) -> Any:
+    """A CalibrationResult-like object for plumbing tests (no pipeline involved)."""
+    from radar_calib_ros.result import calibration_dict, quality_dict
+
+    quality = QualityReport(inlier_ratio=0.9, outlier_distance_m=0.2,
+                            closest_target_offset_m=0.1, tracks_used=4, hypotheses=5,
+                            correspondences=300, passes=4, time_offset_s=0.0,
+                            sigma_translation_m=0.03, sigma_along_boresight_m=0.2,
+                            sigma_across_boresight_m=0.02, sigma_vertical_m=0.02,
+                            sigma_rotation_deg=0.1,
+                            advice=('Drive along the boresight, on the lane towards the radar.',))
+    extrinsics = Extrinsics(np.eye(3), np.array([10.0, 20.0, 6.0]))
+
+    class Result:
+        def calibration(self, config: CalibConfig, stamp: str | None = None) -> dict[str, Any]:
+            return calibration_dict(extrinsics, recording.frame,
+                                    world_frame=config.world.frame_id,
+                                    radar_frame=recording.radar_frame_id,
+                                    quality=quality_dict(quality), stamp=stamp)
+
+    result = Result()
+    result.quality = quality  # type: ignore[attr-defined]
+    return result
+
+
+def fake_run(gate: threading.Event | None = None, started: threading.Event | None = None,
+             error: Exception | None = None, seen: list[Any] | None = None) -> Any:
+    def run(recording: Any, config: CalibConfig, progress: Any = None) -> Any:
+        if seen is not None:
+            seen.append(recording)
+        if started is not None:
+            started.set()
+        if gate is not None:
+            assert gate.wait(10.0)
+        if progress is not None:
+            progress('refine', 0.8)
+        if error is not None:
+            raise error
+        return fake_result(recording)
+    return run
+
+
+def consistent(live: LiveCalibrator) -> None:
+    """Invariants of the buffer that corrupt input must never break."""
+    builder = live._builder  # noqa: SLF001 - white-box check
+    frames, fixes, odoms = builder.sample_counts()
+    assert len(builder._frame_positions) == len(builder._frame_velocities) == frames
+    for positions, velocities in zip(builder._frame_positions, builder._frame_velocities):
+        assert positions.ndim == 2 and positions.shape[1] == 3
+        assert velocities.shape == (positions.shape[0],)
+        assert np.isfinite(positions).all() and np.isfinite(velocities).all()
+    for stamp, lat, lon, alt in builder._fixes:
+        assert stamp > 0 and math.isfinite(lat + lon + alt)
+    assert builder.nbytes() == builder._count_nbytes()
+    stamps = builder.stamp_range_ns()
+    if stamps is None:
+        assert frames + fixes + odoms == 0
+    else:
+        assert (live._oldest_ns, live._newest_ns) == stamps
+
+
+# --- the buffer --------------------------------------------------------------------------
+
+def test_messages_are_buffered_and_counted(tmp_path: Path, store: Any) -> None:
+    live, _ = make_live(tmp_path)
+    feed(live, store, 4.0)
+    stats = live.buffer_stats()
+    assert (stats['radar_frames'], stats['fixes'], stats['odometry']) == (60, 200, 200)
+    assert live.counters['received.radar'] == 60
+    assert live.counters['received.navsat'] == live.counters['buffered.navsat'] == 200
+    assert 3.9 < stats['span_s'] < 4.0
+    consistent(live)
+
+
+def test_buffer_bounded_by_max_duration(tmp_path: Path, store: Any) -> None:
+    live, log = make_live(tmp_path, **{'buffer.max_duration': 5.0})
+    feed(live, store, 20.0, targets=2)
+    stats = live.buffer_stats()
+    # dropped down to max_duration whenever the span exceeds it by the slack (1 s)
+    assert 5.0 - 0.1 <= stats['span_s'] <= 5.0 + 1.0
+    assert live.counters['dropped.radar.max_duration'] > 0
+    assert live.counters['dropped.navsat.max_duration'] > 0
+    assert log.count('buffer.max_duration') == 1
+    oldest = live._builder.stamp_range_ns()[0]
+    assert oldest >= T0_NS + int(13.9e9)  # the oldest data went first
+    consistent(live)
+
+
+def test_buffer_bounded_by_memory(tmp_path: Path, store: Any) -> None:
+    live, log = make_live(tmp_path, **{'buffer.max_memory_mb': 16.0})
+    message = radar_msg(store, T0_NS, 2000)
+    for i in range(400):  # 2000 targets x 32 bytes = 64 kB per frame, 25 MB in all
+        message.header.stamp.sec = T0_NS // 10**9 + i // 15
+        message.header.stamp.nanosec = (i % 15) * 66_666_667
+        assert live.on_radar(message)
+    assert live._builder.nbytes() <= 16 * 2**20
+    assert live.buffer_stats()['radar_frames'] < 400
+    assert live.counters['dropped.radar.max_memory'] > 0
+    assert log.count('buffer.max_memory_mb') == 1
+    consistent(live)
+
+
+def test_update_config_applies_the_new_bound(tmp_path: Path, store: Any) -> None:
+    live, _ = make_live(tmp_path)
+    feed(live, store, 12.0, targets=2)
+    live.update_config(replace_config(live.config, **{'buffer.max_duration': 3.0}))
+    assert live.buffer_stats()['span_s'] <= 3.0 + 1e-9
+    consistent(live)
+
+
+def test_reset_empties_the_buffer(tmp_path: Path, store: Any) -> None:
+    live, _ = make_live(tmp_path)
+    feed(live, store, 2.0)
+    outcome = live.reset()
+    assert outcome.success and '30 radar frames' in outcome.message
+    assert live.buffer_stats()['radar_frames'] == 0
+    assert live.counters['received.radar'] == 30  # counters survive a reset
+    feed(live, store, 1.0, start_ns=T0_NS - 10**12)  # older stamps are fine after a reset
+    assert live.buffer_stats()['radar_frames'] == 15
+    consistent(live)
+
+
+def test_handling_a_500_target_frame_costs_well_under_1_ms(tmp_path: Path, store: Any) -> None:
+    live, _ = make_live(tmp_path)
+    frames = [radar_msg(store, T0_NS + i * 66_666_667, 500, seed=i) for i in range(300)]
+    costs = []
+    for message in frames:
+        start = time.perf_counter()
+        live.on_radar(message)
+        costs.append(time.perf_counter() - start)
+    assert np.median(costs) < 0.5e-3
+
+
+# --- bad input ---------------------------------------------------------------------------
+
+def _bad_radar(store: Any, kind: str) -> Any:
+    message = radar_msg(store, T0_NS + 10**9, 10)
+    if kind == 'truncated':
+        message.data = message.data[:-7]
+    elif kind == 'point_step':
+        message.point_step = 8
+    elif kind == 'no_velocity_field':
+        message = radar_msg(store, T0_NS + 10**9, 10, velocity_field='intensity')
+    elif kind == 'no_position_fields':
+        message.fields = [f for f in message.fields if f.name != 'z']
+    elif kind == 'datatype':
+        message.fields[0].datatype = 99
+    elif kind == 'no_stamp':
+        message.header.stamp.sec = message.header.stamp.nanosec = 0
+    return message
+
+
+@pytest.mark.parametrize('kind', ['truncated', 'point_step', 'no_velocity_field',
+                                  'no_position_fields', 'datatype', 'no_stamp'])
+def test_bad_pointcloud_is_counted_logged_once_and_not_buffered(tmp_path: Path, store: Any,
+                                                                kind: str) -> None:
+    live, log = make_live(tmp_path)
+    feed(live, store, 1.0)
+    before = live.buffer_stats()
+    for _ in range(5):
+        assert live.on_radar(_bad_radar(store, kind)) is False
+    assert live.counters[f'rejected.radar.{kind}'] == 5
+    assert len([line for line in log.lines if line[0] == 'warn']) == 1
+    assert live.buffer_stats() == before
+    levels = {status.name.split(': ')[1]: status for status in live.diagnostics()}
+    assert levels['buffer'].level == 'WARN'
+    assert (f'rejected.radar.{kind}', '5') in levels['buffer'].values
+    consistent(live)
+
+
+def test_nan_targets_are_dropped_and_the_frame_kept(tmp_path: Path, store: Any) -> None:
+    live, log = make_live(tmp_path)
+    positions = np.zeros((6, 3)) + 10.0
+    positions[1, 0] = np.nan
+    velocity = np.ones(6)
+    velocity[4] = np.inf
+    message = msgs.encode_pointcloud(store, T0_NS, 'radar', positions, velocity)
+    assert live.on_radar(message)
+    assert live.counters['rejected.radar_targets.nonfinite'] == 2
+    assert live._builder._frame_positions[0].shape == (4, 3)
+    assert log.count('NaN/inf') == 1
+    consistent(live)
+
+
+def test_navsatfix_without_fix_or_nan_and_bad_odometry(tmp_path: Path, store: Any) -> None:
+    live, log = make_live(tmp_path)
+    for k in range(4):
+        assert not live.on_navsat(fix_msg(store, T0_NS + k, status=-1))
+        bad = fix_msg(store, T0_NS + k)
+        bad.latitude = float('nan')
+        assert not live.on_navsat(bad)
+        bad = odom_msg(store, T0_NS + k)
+        bad.pose.pose.orientation.w = float('nan')
+        assert not live.on_odometry(bad)
+    assert live.counters['dropped.navsat.no_fix'] == 4
+    assert live.counters['rejected.navsat.invalid'] == 4
+    assert live.counters['rejected.odom.invalid'] == 4
+    assert log.count('without a fix') == 1 and log.count('not a position') == 1
+    assert log.count('Odometry rejected') == 1
+    assert live.buffer_stats()['fixes'] == live.buffer_stats()['odometry'] == 0
+    consistent(live)
+
+
+def test_repeated_warnings_are_throttled(tmp_path: Path, store: Any) -> None:
+    clock = FakeClock()
+    live, log = make_live(tmp_path, clock=clock)
+    for _ in range(10):
+        live.on_radar(_bad_radar(store, 'truncated'))
+    clock.t += WARN_THROTTLE_S + 1
+    live.on_radar(_bad_radar(store, 'truncated'))
+    assert log.count('rejected') == 2
+    assert log.count('(10 times since the last report)') == 1
+
+
+def test_bag_replayed_in_a_loop_starts_a_new_recording(tmp_path: Path, store: Any) -> None:
+    live, log = make_live(tmp_path)
+    feed(live, store, 6.0)
+    feed(live, store, 3.0)  # the same stamps again: the bag looped
+    stats = live.buffer_stats()
+    # the buffer holds the new loop only (a few messages of the others streams may be
+    # rejected as stale until they loop too; here all streams loop together)
+    assert stats['radar_frames'] == 45 and stats['fixes'] == 150
+    assert stats['span_s'] < 3.0
+    assert live.counters['restarts'] == 1
+    assert log.count('treating it as a new recording') == 1
+    consistent(live)
+
+
+def test_stale_messages_of_another_stream_after_a_restart(tmp_path: Path, store: Any) -> None:
+    live, _ = make_live(tmp_path)
+    feed(live, store, 6.0)
+    back = T0_NS
+    for i in range(CONFIRM_MESSAGES):  # radar loops first ...
+        live.on_radar(radar_msg(store, back + i * 66_666_667))
+    assert live.counters['restarts'] == 1
+    # ... while the fixes still come from the end of the previous loop
+    assert not live.on_navsat(fix_msg(store, T0_NS + 5_990_000_000))
+    assert live.counters['rejected.navsat.stale'] == 1
+    assert live.on_navsat(fix_msg(store, back + 10_000_000))  # now it looped too
+    assert live.buffer_stats()['fixes'] == 1 and live.counters['restarts'] == 1
+    consistent(live)
+
+
+@pytest.mark.parametrize('offset_s', [-500.0, 5000.0])
+def test_a_single_corrupt_stamp_is_rejected(tmp_path: Path, store: Any,
+                                            offset_s: float) -> None:
+    live, _ = make_live(tmp_path)
+    feed(live, store, 2.0)
+    before = live.buffer_stats()
+    last = live._streams['radar'].last_ns
+    assert live.on_radar(radar_msg(store, last + int(offset_s * 1e9)))  # held
+    assert live.on_radar(radar_msg(store, last + 66_666_667))
+    assert live.counters['rejected.radar.stamp_outlier'] == 1
+    assert live.counters['restarts'] == 0
+    assert live.buffer_stats()['radar_frames'] == before['radar_frames'] + 1
+    assert live.buffer_stats()['span_s'] < 2.1
+    consistent(live)
+
+
+def test_a_confirmed_forward_gap_is_kept(tmp_path: Path, store: Any) -> None:
+    live, log = make_live(tmp_path)
+    feed(live, store, 1.0)
+    later = T0_NS + 600 * 10**9
+    for i in range(CONFIRM_MESSAGES):
+        live.on_radar(radar_msg(store, later + i * 66_666_667))
+    assert live.buffer_stats()['radar_frames'] == 15 + CONFIRM_MESSAGES
+    assert live.counters['restarts'] == 0 and log.count('jumped forward') == 1
+    consistent(live)
+
+
+def test_small_backward_steps_are_out_of_order_delivery(tmp_path: Path, store: Any) -> None:
+    live, _ = make_live(tmp_path)
+    feed(live, store, 3.0)
+    late = T0_NS + 3 * 10**9 - BACKWARD_TOLERANCE_NS // 2
+    assert live.on_radar(radar_msg(store, late))
+    assert live.counters['restarts'] == 0 and live.buffer_stats()['radar_frames'] == 46
+
+
+def test_fuzz_corrupted_messages_never_raise_nor_corrupt_the_buffer(tmp_path: Path,
+                                                                    store: Any) -> None:
+    rng = np.random.default_rng(1234)
+    live, _ = make_live(tmp_path)
+    feed(live, store, 1.0)
+    radar_base = [radar_msg(store, T0_NS + 2 * 10**9 + i * 10**8, int(rng.integers(0, 40)),
+                            seed=i, dtype=(np.float32, np.float64)[i % 2],
+                            big_endian=bool(i % 3 == 0), pad_bytes=int(i % 4))
+                  for i in range(20)]
+    fix_base = [fix_msg(store, T0_NS + 2 * 10**9 + i * 10**8, i) for i in range(20)]
+    specials = [np.nan, np.inf, -np.inf, 0.0, -1.0, 1e308, -1e308, 2**31, 2**32 - 1]
+    for n in range(10_000):
+        if n % 2 == 0:
+            message = copy.deepcopy(radar_base[n % 20])
+            _corrupt_pointcloud(message, rng, specials)
+            live.on_radar(message)
+        else:
+            message = copy.deepcopy(fix_base[n % 20])
+            _corrupt_navsatfix(message, rng, specials)
+            live.on_navsat(message)
+    internal = {k: v for k, v in live.counters.items() if k.endswith('internal_error')}
+    assert internal == {}
+    assert live.counters['received.radar'] == 15 + 5000
+    assert sum(v for k, v in live.counters.items() if k.startswith('rejected.radar.')) > 1000
+    consistent(live)
+    try:
+        live._builder.snapshot().build()
+    except InsufficientDataError:
+        pass
+
+
+def _corrupt_pointcloud(message: Any, rng: np.random.Generator, specials: list[float]) -> None:
+    for _ in range(int(rng.integers(1, 4))):
+        choice = int(rng.integers(0, 12))
+        if choice == 0:
+            message.data = message.data[:int(rng.integers(0, message.data.size + 1))]
+        elif choice == 1:
+            message.data = np.concatenate([message.data, rng.integers(
+                0, 256, int(rng.integers(1, 64)), dtype=np.uint8)])
+        elif choice == 2:
+            data = message.data.copy()
+            if data.size:
+                idx = rng.integers(0, data.size, int(rng.integers(1, 16)))
+                data[idx] = rng.integers(0, 256, idx.size, dtype=np.uint8)
+            message.data = data
+        elif choice == 3:
+            message.point_step = int(rng.choice([0, 1, 3, 7, 12, 13, 1000, 2**31]))
+        elif choice == 4:
+            message.width = int(rng.choice([0, 1, message.width + 1, 2**31, 2**32 - 1]))
+        elif choice == 5:
+            message.height = int(rng.choice([0, 2, 3, 2**16]))
+        elif choice == 6:
+            message.row_step = int(rng.choice([0, 1, message.row_step * 2, 2**32 - 1]))
+        elif choice == 7 and message.fields:
+            field = message.fields[int(rng.integers(0, len(message.fields)))]
+            field.datatype = int(rng.integers(0, 12))
+        elif choice == 8 and message.fields:
+            field = message.fields[int(rng.integers(0, len(message.fields)))]
+            field.offset = int(rng.choice([0, 1, 3, 255, 2**31, 2**32 - 1]))
+        elif choice == 9 and message.fields:
+            field = message.fields[int(rng.integers(0, len(message.fields)))]
+            field.name = str(rng.choice(['x', 'velocity', 'range', 'doppler', '', 'q']))
+        elif choice == 10:
+            message.is_bigendian = not message.is_bigendian
+        else:
+            message.header.stamp.sec = int(rng.choice([0, 1, 2**31 - 1, -5,
+                                                        message.header.stamp.sec - 3600]))
+
+
+def _corrupt_navsatfix(message: Any, rng: np.random.Generator, specials: list[float]) -> None:
+    for _ in range(int(rng.integers(1, 3))):
+        choice = int(rng.integers(0, 6))
+        if choice == 0:
+            message.latitude = float(rng.choice(specials))
+        elif choice == 1:
+            message.longitude = float(rng.choice(specials))
+        elif choice == 2:
+            message.altitude = float(rng.choice(specials))
+        elif choice == 3:
+            message.status.status = int(rng.choice([-2, -1, 0, 1, 2, 127]))
+        elif choice == 4:
+            message.header.stamp.nanosec = int(rng.choice([0, 999_999_999, 2**32 - 1]))
+        else:
+            message.header.stamp.sec = int(rng.choice([0, 2**31 - 1, -1,
+                                                        message.header.stamp.sec + 7200]))
+
+
+# --- calibrate ---------------------------------------------------------------------------
+
+def test_calibrate_success_publishes_and_writes_the_file(tmp_path: Path, store: Any) -> None:
+    live, log = make_live(tmp_path)
+    feed(live, store, 2.0)
+    outcome = live.calibrate()
+    assert outcome.success, outcome.message
+    assert outcome.message.startswith('calibrated radar in utm (EPSG 326')
+    for part in ('position E ', ' N ', 'alt ', 'yaw ', 'r_i 0.90', '1-sigma 0.030 m',
+                 '4 passes', 'Drive along the boresight'):
+        assert part in outcome.message
+    transform = outcome.transform
+    assert transform is not None and transform == live.transform
+    assert (transform.parent_frame, transform.child_frame) == ('utm', 'radar')
+    assert transform.stamp_ns == T0_NS
+    saved = load_result(tmp_path / 'result.yaml')
+    assert saved['translation'] == pytest.approx(list(transform.translation_m))
+    assert saved['quaternion_xyzw'] == pytest.approx(list(transform.quaternion_xyzw))
+    status = live.diagnostics()[0]
+    assert status.level == 'WARN'  # sigma along the boresight 0.2 m > 0.05 m
+    assert 'Drive along the boresight' in status.message
+    keys = dict(status.values)
+    assert keys['quality.inlier_ratio'] == '0.9' and 'translation' in keys
+    assert not list(tmp_path.glob('.result.yaml.*'))  # no temporary file left behind
+
+
+def test_calibrate_failure_reports_the_reason_and_keeps_the_file(tmp_path: Path,
+                                                                 store: Any) -> None:
+    error = InsufficientDataError('hypotheses', 'calibration vehicle seen in 1 pass, need '
+                                  'at least 3')
+    live, log = make_live(tmp_path, run=fake_run(error=error))
+    feed(live, store, 1.0)
+    outcome = live.calibrate()
+    assert not outcome.success and outcome.transform is None
+    assert outcome.message == ('calibration failed: calibration vehicle seen in 1 pass, need '
+                               'at least 3')
+    assert not (tmp_path / 'result.yaml').exists()
+    status = live.diagnostics()[0]
+    assert status.level == 'ERROR' and 'seen in 1 pass' in status.message
+    assert log.count('calibration failed') == 1
+
+
+def test_calibrate_on_an_empty_buffer(tmp_path: Path) -> None:
+    live, _ = make_live(tmp_path)
+    outcome = live.calibrate()
+    assert not outcome.success and 'no radar frame' in outcome.message
+
+
+def test_a_second_calibrate_is_refused_and_messages_keep_flowing(tmp_path: Path,
+                                                                 store: Any) -> None:
+    gate, started = threading.Event(), threading.Event()
+    seen: list[Any] = []
+    live, _ = make_live(tmp_path, run=fake_run(gate, started, seen=seen))
+    feed(live, store, 1.0)
+    outcomes: list[Any] = []
+    worker = threading.Thread(target=lambda: outcomes.append(live.calibrate()))
+    worker.start()
+    try:
+        assert started.wait(10.0)
+        assert live.calibrating
+        second = live.calibrate()
+        assert not second.success and 'already running' in second.message
+        # the buffer is not locked by the running calibration
+        feed(live, store, 1.0, start_ns=T0_NS + 10**9)
+        assert live.buffer_stats()['radar_frames'] == 30
+    finally:
+        gate.set()
+        worker.join(10.0)
+    assert outcomes[0].success
+    assert seen[0].frame_stamps_ns.size == 15  # it calibrated the snapshot
+    assert not live.calibrating and live.calibrate().success
+
+
+def test_cancel_stops_a_running_calibration(tmp_path: Path, store: Any) -> None:
+    live, _ = make_live(tmp_path)
+    feed(live, store, 1.0)
+    live.cancel()
+    assert not live.calibrate().success
+    live, _ = make_live(tmp_path)
+    feed(live, store, 1.0)
+
+    def run(recording: Any, config: CalibConfig, progress: Any) -> Any:
+        live.cancel()
+        progress('refine', 0.8)
+        raise AssertionError('not reached')
+    live._run = run
+    outcome = live.calibrate()
+    assert not outcome.success and 'shutting down' in outcome.message
+
+
+# --- the result file at start ------------------------------------------------------------
+
+def test_existing_result_file_is_loaded_and_served(tmp_path: Path, store: Any) -> None:
+    first, _ = make_live(tmp_path)
+    feed(first, store, 1.0)
+    published = first.calibrate().transform
+    second, log = make_live(tmp_path)
+    loaded = second.load_result_file()
+    assert loaded is not None and loaded == second.transform
+    assert loaded.translation_m == pytest.approx(published.translation_m)
+    assert loaded.quaternion_xyzw == pytest.approx(published.quaternion_xyzw)
+    assert loaded.child_frame == 'radar'
+    status = second.diagnostics()[0]
+    assert status.level == 'WARN' and 'loaded from' in status.message
+
+
+@pytest.mark.parametrize('text', ['{not yaml: [', '/**:\n  ros__parameters:\n    calibration:'
+                                  '\n      translation: [1, 2]\n      epsg: 32632\n'
+                                  '      quaternion_xyzw: [0, 0, 0, 1]\n'])
+def test_corrupt_result_file_is_reported_and_left_until_a_calibration(
+        tmp_path: Path, store: Any, text: str) -> None:
+    path = tmp_path / 'result.yaml'
+    path.write_text(text)
+    live, log = make_live(tmp_path)
+    assert live.load_result_file() is None and live.transform is None
+    assert path.read_text() == text
+    assert [s for s, m in log.lines if 'not a valid calibration' in m] == ['error']
+    assert live.diagnostics()[0].level == 'ERROR'
+    feed(live, store, 1.0)
+    assert live.calibrate().success
+    assert load_result(path)['translation'] == pytest.approx(list(live.transform.translation_m))
+    assert live.diagnostics()[0].level != 'ERROR'
+
+
+def test_missing_result_file_means_not_calibrated(tmp_path: Path) -> None:
+    live, _ = make_live(tmp_path)
+    assert live.load_result_file() is None
+    status, buffer = live.diagnostics()
+    assert status.level == 'WARN' and 'not calibrated yet' in status.message
+    assert buffer.level == 'OK'
+
+
+# --- save_recording ----------------------------------------------------------------------
+
+def test_save_recording_round_trip(tmp_path: Path, store: Any) -> None:
+    live, _ = make_live(tmp_path, **{'radar.velocity_sign': -1.0})
+    feed(live, store, 3.0)
+    live.on_navsat(fix_msg(store, T0_NS + 5, status=-1))  # dropped: not in the bag
+    outcome = live.save_recording()
+    assert outcome.success, outcome.message
+    bags = list((tmp_path / 'recordings').iterdir())
+    assert len(bags) == 1 and str(bags[0]) in outcome.message
+    expected = live._builder.snapshot().build()
+    again = read_recording(bags[0], live.config)
+    np.testing.assert_array_equal(again.frame_stamps_ns, expected.frame_stamps_ns)
+    np.testing.assert_array_equal(again.targets.positions_m, expected.targets.positions_m)
+    np.testing.assert_array_equal(again.targets.radial_velocity_mps,
+                                  expected.targets.radial_velocity_mps)
+    np.testing.assert_array_equal(again.targets.frame_index, expected.targets.frame_index)
+    np.testing.assert_array_equal(again.vehicle.stamps_ns, expected.vehicle.stamps_ns)
+    np.testing.assert_array_equal(again.vehicle.positions_m, expected.vehicle.positions_m)
+    np.testing.assert_array_equal(again.vehicle.yaw_rad, expected.vehicle.yaw_rad)
+    second = live.save_recording()
+    assert second.success and len(list((tmp_path / 'recordings').iterdir())) == 2
+
+
+def test_save_recording_of_an_empty_buffer_or_unwritable_place(tmp_path: Path,
+                                                               store: Any) -> None:
+    live, _ = make_live(tmp_path)
+    assert not live.save_recording().success
+    feed(live, store, 0.5)
+    (tmp_path / 'file').write_text('')
+    outcome = live.save_recording(tmp_path / 'file' / 'bag')
+    assert not outcome.success and 'not saved' in outcome.message
+
+
+# --- RecordingBuilder extensions the node relies on -------------------------------------
+
+def test_builder_snapshot_is_independent_and_samples_are_in_stamp_order() -> None:
+    builder = RecordingBuilder(CalibConfig())
+    builder.add_radar_frame(RadarFrame(30, np.ones((2, 3)), np.ones(2)))
+    builder.add_fix(FixSample(10, LAT0, LON0, ALT0, 0))
+    builder.add_odometry(OdomSample(20, (0, 0, 0), (0, 0, 0, 1), (1, 0, 0), 0.0))
+    snapshot = builder.snapshot()
+    builder.add_radar_frame(RadarFrame(40, np.ones((1, 3)), np.ones(1)))
+    builder.drop_before(25)
+    assert snapshot.sample_counts() == (1, 1, 1) and builder.sample_counts() == (2, 0, 0)
+    assert [s.stamp_ns for s in snapshot.samples()] == [10, 20, 30]
+    assert snapshot.nbytes() == snapshot._count_nbytes()
+    assert builder.nbytes() == builder._count_nbytes()
