@@ -78,14 +78,16 @@ class BufferConfig:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class OutputConfig:
-    path: str = _p('radar_calibration.yaml', 'result file the node writes (and loads at start)')
+    path: str = _p('radar_calibration.yaml', 'result file the node writes (and loads at start)',
+                   read_only=True)
     recording_dir: str = _p('radar_calib_recordings', 'directory for ~/save_recording bags')
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class QosConfig:
-    reliable: bool = _p(False, 'subscribe reliable instead of sensor-data best effort')
-    depth: int = _p(50, 'subscription queue depth', lo=1, hi=10000)
+    reliable: bool = _p(False, 'subscribe reliable instead of sensor-data best effort',
+                        read_only=True)
+    depth: int = _p(50, 'subscription queue depth', lo=1, hi=10000, read_only=True)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -184,9 +186,11 @@ class CalibConfig:
     it to tell "pick the topic by type" from "this topic must exist".
     """
 
-    radar_topic: str = _p(*_TOP_LEVEL['radar_topic'])
-    navsat_topic: str = _p(*_TOP_LEVEL['navsat_topic'])
-    odom_topic: str = _p(*_TOP_LEVEL['odom_topic'])
+    # read_only: the node subscribes once, at start (as tf2_ros's static_transform_publisher
+    # declares its fixed parameters read-only)
+    radar_topic: str = _p(*_TOP_LEVEL['radar_topic'], read_only=True)
+    navsat_topic: str = _p(*_TOP_LEVEL['navsat_topic'], read_only=True)
+    odom_topic: str = _p(*_TOP_LEVEL['odom_topic'], read_only=True)
     radar: RadarConfig = field(default_factory=RadarConfig)
     world: WorldConfig = field(default_factory=WorldConfig)
     sync: SyncConfig = field(default_factory=SyncConfig)
