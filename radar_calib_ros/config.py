@@ -144,6 +144,17 @@ class HypothesesConfig:
     eps_m: float = _p(3.0, 'DBSCAN radius over hypothesis translations [m]', lo=0.01, hi=100.0)
     min_samples: int = _p(2, 'DBSCAN minimum hypotheses per cluster', lo=1, hi=1000)
     min_passes: int = _p(3, 'fewest agreeing vehicle passes for a calibration', lo=1, hi=1000)
+    pass_gap_s: float = _p(2.0, 'tracks closer in time than this belong to one pass [s]',
+                           lo=0.0, hi=600.0)
+    max_mean_angle_deg: float = _p(
+        5.0, 'largest mean pairwise rotation angle of an accepted hypothesis cluster [deg]',
+        lo=0.01, hi=180.0)
+    angle_tie_deg: float = _p(
+        1.0, 'clusters this close to the lowest mean angle tie; more passes, then lower RMS '
+        'win [deg]', lo=0.0, hi=180.0)
+    reflection_height_m: float = _p(
+        0.5, 'prior mean height of the vehicle reflections above the road [m]',
+        lo=-1.0, hi=5.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -233,7 +233,9 @@ class HypothesisSelection:
     labels : (h,) DBSCAN label of each hypothesis (-1 noise); accepted_label: the chosen
     cluster; mean_angles_deg: mean pairwise rotation angle per cluster label;
     extrinsics: the transform re-estimated on the accepted cluster's merged
-    correspondences, concatenated with R_αβ (sensor -> world).
+    correspondences, concatenated with R_αβ (sensor -> world); pass_intervals_ns: (p, 2)
+    [start, end] stamps of the distinct vehicle passes of the accepted tracks (fragments
+    of one pass merged).
     """
 
     hypotheses: tuple[Hypothesis, ...]
@@ -243,6 +245,12 @@ class HypothesisSelection:
     accepted_track_ids: tuple[int, ...]
     extrinsics: Extrinsics
     n_correspondences: int
+    pass_intervals_ns: I64 = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+
+    @property
+    def n_passes(self) -> int:
+        """Distinct vehicle passes of the accepted tracks."""
+        return int(self.pass_intervals_ns.shape[0])
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,0 +1,210 @@
+"""A synthetic calibration scene for the stage 6, 7 and 9 tests (not a test module).
+
+A radar at known extrinsics looks at a road; the calibration vehicle drives straight,
+accelerating, through the view once per pass and waits far away in between. Smoothed
+tracks and targets are built directly (no clustering or filtering), noise-free unless
+asked, so the stages can be checked against known answers.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core import vehicle as vehicle_box
+from radar_calib_ros.io.geo import LocalFrame
+from radar_calib_ros.recording import Recording
+from radar_calib_ros.types import (
+    Extrinsics, GroundPlane, SmoothedTrack, Targets, TrackedTargets, VehicleTrack)
+
+ROAD_Z = 480.0
+YAW0_DEG = 30.0
+PASS_S = 6.0
+PASS_PERIOD_S = 20.0
+POSE_HZ = 50.0
+RADAR_HZ = 15.0
+PARKED = np.array([900.0, 900.0])
+
+#: Lanes in the levelled sensor frame: start (x, y) and heading [deg].
+LANES = [((70.0, -4.0), 180.0), ((16.0, 4.0), 0.0), ((35.0, -27.0), 90.0),
+         ((45.0, 27.0), -90.0), ((20.0, -20.0), 45.0), ((70.0, 20.0), -135.0)]
+
+
+@dataclass(frozen=True)
+class Scene:
+    recording: Recording
+    tracks: tuple[SmoothedTrack, ...]
+    tracked: TrackedTargets
+    ground: GroundPlane
+    truth: Extrinsics
+    config: CalibConfig
+    vehicle_track_ids: tuple[int, ...]
+    windows_s: list[tuple[float, float]]
+
+
+def _rz(deg: float) -> np.ndarray:
+    return Rotation.from_euler('z', deg, degrees=True).as_matrix()
+
+
+def truth_extrinsics() -> tuple[Extrinsics, np.ndarray]:
+    """True sensor -> world and R_level (pitch 10 deg down, roll -1.5 deg)."""
+    level = Rotation.from_euler('yx', [10.0, -1.5], degrees=True).as_matrix()
+    rotation = _rz(YAW0_DEG) @ level
+    return Extrinsics(rotation, np.array([5.0, -3.0, ROAD_Z + 6.0])), level
+
+
+def _lane_path(lane: int, tau: np.ndarray, truth: Extrinsics) -> tuple[np.ndarray, float]:
+    """World xy of the reference point after tau s on a lane, and the world heading."""
+    (x0, y0), heading = LANES[lane % len(LANES)]
+    s = 6.0 * tau + 0.5 * 1.0 * tau ** 2
+    h = np.radians(heading)
+    xy_l = np.column_stack([x0 + s * np.cos(h), y0 + s * np.sin(h)])
+    rz = _rz(YAW0_DEG)[:2, :2]
+    return xy_l @ rz.T + truth.translation_m[:2], np.radians(heading + YAW0_DEG)
+
+
+def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int = 0,
+               target_noise_m: float = 0.0, interior_targets: int = 5,
+               split_pass: int | None = None, random_cars: int = 0,
+               followers: float | None = None, radar_stamp_shift_s: float = 0.0,
+               config: CalibConfig | None = None) -> Scene:
+    """Build a scene.
+
+    lanes: lane index per pass (default 0, 1, 2, ...); split_pass: that pass's track is
+    cut in two fragments; random_cars: other cars on random straight paths (hypotheses
+    that do not fit); followers: a car following the vehicle on every pass with this lag
+    [s]; radar_stamp_shift_s: radar stamps are this much late against the pose clock.
+    """
+    rng = np.random.default_rng(seed)
+    config = config or CalibConfig()
+    truth, level = truth_extrinsics()
+    lanes = lanes if lanes is not None else list(range(n_passes))
+    windows = [(10.0 + PASS_PERIOD_S * k, 10.0 + PASS_PERIOD_S * k + PASS_S)
+               for k in range(n_passes)]
+    total_s = windows[-1][1] + 10.0
+
+    # vehicle poses: on the lane during a pass, parked far away otherwise
+    t_pose = np.arange(0.0, total_s, 1.0 / POSE_HZ)
+    xy = np.tile(PARKED, (t_pose.size, 1))
+    yaw = np.zeros(t_pose.size)
+    vel = np.zeros((t_pose.size, 3))
+    for (start, end), lane in zip(windows, lanes):
+        m = (t_pose >= start) & (t_pose <= end)
+        tau = t_pose[m] - start
+        xy[m], heading = _lane_path(lane, tau, truth)
+        yaw[m] = heading
+        speed = 6.0 + tau
+        vel[m, 0], vel[m, 1] = speed * np.cos(heading), speed * np.sin(heading)
+    ref_z = ROAD_Z + config.vehicle.ref_height
+    pose_ns = (t_pose * 1e9).astype(np.int64) + 1_000_000_000
+    vehicle = VehicleTrack(pose_ns, np.column_stack([xy, np.full(t_pose.size, ref_z)]), yaw,
+                           vel, np.zeros(t_pose.size))
+
+    # radar frames at 15 Hz, not aligned with the pose samples
+    shift_ns = round(radar_stamp_shift_s * 1e9)
+    frame_ns = (np.arange(0.003, total_s, 1.0 / RADAR_HZ) * 1e9).astype(np.int64) + (
+        1_000_000_000 + shift_ns)
+    # the pose-clock time of each frame, from the integer stamps the stages will see
+    t_radar = (frame_ns - 1_000_000_000 - shift_ns) * 1e-9
+    pos_at = _pose_at(t_pose, xy, yaw)
+
+    positions, frames, track_ids = [], [], []
+    tracks: list[SmoothedTrack] = []
+    vehicle_ids: list[int] = []
+    x0, x1, y0, y1 = vehicle_box.box_limits(config.vehicle)
+    centre_forward = 0.5 * (x0 + x1)
+    next_id = 0
+
+    def add_track(frame_idx: np.ndarray, centre_world: np.ndarray) -> int:
+        nonlocal next_id
+        levelled = (centre_world - truth.translation_m) @ _rz(YAW0_DEG)
+        tracks.append(SmoothedTrack(next_id, frame_idx, frame_ns[frame_idx],
+                                    levelled[:, :2].copy(), levelled[:, 2].copy(),
+                                    np.zeros((frame_idx.size, 6)),
+                                    np.zeros((frame_idx.size, 6, 6))))
+        next_id += 1
+        return next_id - 1
+
+    for k, (start, end) in enumerate(windows):
+        idx = np.flatnonzero((t_radar > start + 0.1) & (t_radar < end - 0.1))
+        pxy, pyaw = pos_at(t_radar[idx])
+        centre = np.column_stack([
+            vehicle_box.vehicle_to_world(np.column_stack([np.full(idx.size, centre_forward),
+                                                          np.zeros(idx.size)]), pxy, pyaw),
+            np.full(idx.size, ROAD_Z + config.hypotheses.reflection_height_m)])
+        parts = np.array_split(np.arange(idx.size), 2) if k == split_pass else [
+            np.arange(idx.size)]
+        part_ids = []
+        for part in parts:
+            part_ids.append(add_track(idx[part], centre[part]))
+        vehicle_ids += part_ids
+        # targets: the box point closest to the sensor, then interior points
+        sensor_local = vehicle_box.world_to_vehicle(
+            np.broadcast_to(truth.translation_m[:2], (idx.size, 2)), pxy, pyaw)
+        clamp = np.column_stack([np.clip(sensor_local[:, 0], x0, x1),
+                                 np.clip(sensor_local[:, 1], y0, y1)])
+        local = [clamp[:, None, :]]
+        if interior_targets:
+            u = rng.uniform(size=(idx.size, interior_targets, 2))
+            local.append(np.stack([x0 + (x1 - x0) * u[..., 0], y0 + (y1 - y0) * u[..., 1]],
+                                  axis=-1))
+        local_all = np.concatenate(local, axis=1)
+        n_per = local_all.shape[1]
+        world_xy = vehicle_box.vehicle_to_world(
+            local_all.reshape(-1, 2), np.repeat(pxy, n_per, axis=0), np.repeat(pyaw, n_per))
+        world_xy = world_xy + rng.normal(0.0, target_noise_m, world_xy.shape)
+        z = ROAD_Z + rng.uniform(0.2, 0.8, world_xy.shape[0])
+        world = np.column_stack([world_xy, z])
+        positions.append(truth.inverse_apply(world))
+        frames.append(np.repeat(idx, n_per))
+        owner = np.empty(idx.size, np.int64)
+        for part, tid in zip(parts, part_ids):
+            owner[part] = tid
+        track_ids.append(np.repeat(owner, n_per))
+
+        if followers is not None:
+            fidx = idx[(t_radar[idx] - start) > followers + 0.1]
+            tau = t_radar[fidx] - start - followers
+            fxy, heading = _lane_path(lanes[k], tau, truth)
+            fc = vehicle_box.vehicle_to_world(
+                np.column_stack([np.full(fidx.size, centre_forward), np.zeros(fidx.size)]),
+                fxy, np.full(fidx.size, heading))
+            add_track(fidx, np.column_stack([fc, np.full(fidx.size, ROAD_Z + 0.5)]))
+
+    for _ in range(random_cars):
+        start = rng.uniform(0.0, total_s - 8.0)
+        idx = np.flatnonzero((t_radar > start) & (t_radar < start + 8.0))
+        tau = t_radar[idx] - start
+        p0 = rng.uniform([15.0, -30.0], [70.0, 30.0])
+        h = rng.uniform(-np.pi, np.pi)
+        speed = rng.uniform(4.0, 15.0)
+        xy_l = p0 + speed * tau[:, None] * np.array([np.cos(h), np.sin(h)])
+        world = np.column_stack([xy_l @ _rz(YAW0_DEG)[:2, :2].T + truth.translation_m[:2],
+                                 np.full(idx.size, ROAD_Z + 0.5)])
+        add_track(idx, world)
+
+    positions_m = np.concatenate(positions)
+    frame_index = np.concatenate(frames)
+    order = np.argsort(frame_index, kind='stable')
+    targets = Targets(positions_m[order], np.full(order.size, 5.0), frame_index[order])
+    tracked = TrackedTargets(np.arange(order.size, dtype=np.int64),
+                             np.concatenate(track_ids)[order])
+    recording = Recording(frame_ns, targets, vehicle, LocalFrame.at(48.4, 9.99))
+    normal = level.T @ np.array([0.0, 0.0, 1.0])
+    ground = GroundPlane(normal, -6.0, level, 0.0, np.zeros(0, np.int64))
+    return Scene(recording, tuple(tracks), tracked, ground, truth, config,
+                 tuple(vehicle_ids), windows)
+
+
+def _pose_at(t_pose: np.ndarray, xy: np.ndarray, yaw: np.ndarray):
+    def at(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = np.column_stack([np.interp(t, t_pose, xy[:, i]) for i in range(2)])
+        return p, np.interp(t, t_pose, np.unwrap(yaw))
+    return at
+
+
+def with_hypotheses(config: CalibConfig, **changes: object) -> CalibConfig:
+    """A config with some ``hypotheses`` fields changed."""
+    return replace(config, hypotheses=replace(config.hypotheses, **changes))

@@ -1,0 +1,150 @@
+"""Stage 6: hypotheses per track, the cluster filter, passes, and the exit-1 cases."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from calib_scene import make_scene, with_hypotheses
+
+from radar_calib_ros.core import hypotheses, registration
+from radar_calib_ros.errors import InsufficientDataError
+from radar_calib_ros.types import Hypothesis
+
+
+def _select(scene):  # type: ignore[no-untyped-def]
+    hyps = hypotheses.generate_hypotheses(scene.tracks, scene.recording, scene.ground,
+                                          scene.config)
+    return hyps, hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording,
+                                             scene.ground, scene.config)
+
+
+def test_noise_free_scene_recovers_the_transform() -> None:
+    scene = make_scene(n_passes=5)
+    hyps, selection = _select(scene)
+    assert len(hyps) == 5
+    level = scene.ground.rotation_level
+    for h in hyps:
+        # each hypothesis maps the levelled frame: truth = R_h @ R_level
+        np.testing.assert_allclose(h.rotation @ level, scene.truth.rotation, atol=1e-9)
+        np.testing.assert_allclose(h.translation_m, scene.truth.translation_m, atol=1e-8)
+        assert h.rms_m < 1e-8
+    est = selection.extrinsics
+    assert float(registration.rotation_angle_deg(est.rotation, scene.truth.rotation)) < 1e-8
+    np.testing.assert_allclose(est.translation_m, scene.truth.translation_m, atol=1e-8)
+    assert set(selection.accepted_track_ids) == set(scene.vehicle_track_ids)
+    assert selection.n_passes == 5
+    assert selection.n_correspondences == sum(h.n_correspondences for h in hyps)
+
+
+def test_clock_offset_is_applied_before_interpolating() -> None:
+    # radar stamps 80 ms late: at 6-12 m/s that is ~0.5-1 m along the path unless
+    # sync.time_offset takes it back
+    late = make_scene(n_passes=4, radar_stamp_shift_s=0.08)
+    _, sel_wrong = _select(late)
+    err_wrong = np.linalg.norm(sel_wrong.extrinsics.translation_m - late.truth.translation_m)
+    cfg = late.config
+    fixed = make_scene(n_passes=4, radar_stamp_shift_s=0.08,
+                       config=type(cfg)(sync=type(cfg.sync)(time_offset=-0.08)))
+    _, sel = _select(fixed)
+    np.testing.assert_allclose(sel.extrinsics.translation_m, fixed.truth.translation_m,
+                               atol=1e-8)
+    assert err_wrong > 0.1
+
+
+def test_decoys_are_rejected_and_fragments_merge_into_one_pass() -> None:
+    scene = make_scene(n_passes=4, random_cars=15, split_pass=2, seed=3)
+    hyps, selection = _select(scene)
+    assert set(selection.accepted_track_ids) == set(scene.vehicle_track_ids)
+    assert len(selection.accepted_track_ids) == 5  # pass 2 is two fragments
+    assert selection.n_passes == 4
+    np.testing.assert_allclose(selection.extrinsics.translation_m,
+                               scene.truth.translation_m, atol=1e-7)
+
+
+def test_follower_cluster_loses_the_tie_on_timing() -> None:
+    # every pass on the same lane, a car following 1.5 s behind: its hypotheses agree in
+    # rotation as well as the vehicle's and span as many passes; only the timing (the
+    # vehicle accelerates, so a lagged copy does not map rigidly) tells them apart
+    scene = make_scene(n_passes=4, lanes=[0, 0, 0, 0], followers=1.5)
+    hyps, selection = _select(scene)
+    follower_ids = set(range(len(scene.tracks))) - set(scene.vehicle_track_ids)
+    follower_labels = {int(selection.labels[i]) for i, h in enumerate(hyps)
+                       if h.track_id in follower_ids}
+    assert follower_labels and -1 not in follower_labels  # the decoys do form a cluster
+    assert set(selection.accepted_track_ids) == set(scene.vehicle_track_ids)
+    np.testing.assert_allclose(selection.extrinsics.translation_m,
+                               scene.truth.translation_m, atol=1e-7)
+
+
+def test_lowest_mean_angle_cluster_wins() -> None:
+    # hand-made hypotheses: cluster A agrees to 0.2 deg, cluster B scatters by 3 deg
+    scene = make_scene(n_passes=8, lanes=[0, 1, 2, 3, 0, 1, 2, 3])
+    truth_bev = scene.truth.rotation @ scene.ground.rotation_level.T
+    rng = np.random.default_rng(0)
+    hyps = []
+    for i, track in enumerate(scene.tracks):
+        good = i % 2 == 0
+        jitter = registration.yaw_rotation(np.radians(rng.normal(0, 0.2 if good else 3.0)))
+        t = scene.truth.translation_m + (0.0 if good else 30.0) + rng.normal(0, 0.3, 3)
+        hyps.append(Hypothesis(track.track_id, jitter @ truth_bev, t, 80, 0.2))
+    cfg = with_hypotheses(scene.config, max_mean_angle_deg=10.0)
+    selection = hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+                                            cfg)
+    accepted = selection.accepted_label
+    assert selection.mean_angles_deg[accepted] < 1.0
+    assert max(selection.mean_angles_deg.values()) > 1.0
+    assert set(selection.accepted_track_ids) == {t.track_id for i, t in
+                                                 enumerate(scene.tracks) if i % 2 == 0}
+
+
+def test_short_tracks_make_no_hypothesis() -> None:
+    scene = make_scene(n_passes=3)
+    n = min(t.stamps_ns.size for t in scene.tracks)
+    cfg = with_hypotheses(scene.config, min_track_frames=n + 1)
+    assert hypotheses.generate_hypotheses(scene.tracks, scene.recording, scene.ground,
+                                          cfg) == []
+    cfg = with_hypotheses(scene.config, min_track_length_m=500.0)
+    assert hypotheses.generate_hypotheses(scene.tracks, scene.recording, scene.ground,
+                                          cfg) == []
+
+
+def test_vehicle_never_seen_exits_with_reason() -> None:
+    scene = make_scene(n_passes=3, random_cars=8, seed=1)
+    others = tuple(t for t in scene.tracks if t.track_id not in scene.vehicle_track_ids)
+    hyps = hypotheses.generate_hypotheses(others, scene.recording, scene.ground, scene.config)
+    with pytest.raises(InsufficientDataError, match='never seen'):
+        hypotheses.prune_hypotheses(hyps, others, scene.recording, scene.ground, scene.config)
+
+
+def test_too_few_passes_exits_with_the_numbers() -> None:
+    scene = make_scene(n_passes=2, split_pass=0)
+    with pytest.raises(InsufficientDataError,
+                       match='calibration vehicle seen in 2 passes, need at least 3'):
+        _select(scene)
+
+
+def test_disagreeing_hypotheses_exit() -> None:
+    scene = make_scene(n_passes=4)
+    truth_bev = scene.truth.rotation @ scene.ground.rotation_level.T
+    # translations 20 m apart: no two agree
+    hyps = [Hypothesis(t.track_id, truth_bev, scene.truth.translation_m + [20.0 * i, 0, 0],
+                       80, 0.1) for i, t in enumerate(scene.tracks)]
+    with pytest.raises(InsufficientDataError, match='hypotheses do not agree'):
+        hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+                                    scene.config)
+    # translations agree but rotations scatter by ~10 deg
+    hyps = [Hypothesis(t.track_id, registration.yaw_rotation(np.radians(10.0 * i)) @ truth_bev,
+                       scene.truth.translation_m, 80, 0.1) for i, t in enumerate(scene.tracks)]
+    with pytest.raises(InsufficientDataError, match='mean pairwise rotation'):
+        hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+                                    scene.config)
+
+
+def test_merge_intervals_boundaries() -> None:
+    s = 1_000_000_000
+    intervals = np.array([[10 * s, 12 * s], [0, 3 * s], [5 * s, 6 * s], [2 * s, 4 * s],
+                          [14 * s, 15 * s]])
+    merged = hypotheses.merge_intervals_ns(intervals, 2.0)
+    # [0,3]+[2,4] overlap; 4 -> 5 is a 1 s gap; 6 -> 10 is 4 s; 12 -> 14 is exactly 2 s
+    np.testing.assert_array_equal(merged, [[0, 6 * s], [10 * s, 15 * s]])
+    assert hypotheses.merge_intervals_ns(intervals, 0.0).shape == (4, 2)
+    assert hypotheses.merge_intervals_ns(np.zeros((0, 2), np.int64), 2.0).shape == (0, 2)
