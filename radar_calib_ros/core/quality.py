@@ -1,0 +1,278 @@
+"""Stage 9: the quality figures of a calibration (CONTRACT.md "Quality figures").
+
+The paper's r_i, delta_op and delta_p (``radar_calib_ros.metrics``) over the calibration
+vehicle's targets (those of the accepted tracks), the counts behind the estimate, the
+clock offset, a 1-sigma uncertainty and plain advice.
+
+The uncertainty comes from agreement across passes, never from r_i (a wrong calibration
+can score a higher r_i than the true one). With the final refinement it is the
+refinement's covariance; without it, a bootstrap over the distinct vehicle passes: passes
+are resampled with replacement and the estimator that produced the calibration is re-run
+in closed form on them (the closest-target fit when the paper's refinement ran, the
+merged centre fit of stage 6 otherwise). Whole passes are the resampling unit because the
+frames of one pass share one aspect and one bias: resampling frames would report the
+noise of a single drive, not the disagreement between drives.
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from radar_calib_ros import metrics
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core import hypotheses, polygon, registration
+from radar_calib_ros.core import vehicle as vehicle_box
+from radar_calib_ros.recording import Recording
+from radar_calib_ros.types import (
+    F64, I64, Extrinsics, HypothesisSelection, QualityReport, Refinement, TrackedTargets)
+
+_LOG = logging.getLogger(__name__)
+
+#: Fewer agreeing passes than this earns advice to drive more.
+_FEW_PASSES = 5
+#: Pass headings all within this of their mean count as one direction [deg].
+_ONE_DIRECTION_DEG = 30.0
+#: Below this inlier ratio the box or the clock is probably wrong.
+_LOW_INLIER_RATIO = 0.4
+
+
+def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
+                   recording: Recording, tracked: TrackedTargets,
+                   selection: HypothesisSelection, config: CalibConfig) -> QualityReport:
+    """The quality report of the final calibration.
+
+    Parameters
+    ----------
+    extrinsics : Extrinsics
+        The final calibration (local frame).
+    refinement : Refinement or None
+        Stage 8 output; its covariance gives the uncertainty and its
+        ``diagnostics['advice']`` comes first in the advice.
+    recording, tracked, selection, config
+        As the pipeline passes them.
+
+    Returns
+    -------
+    QualityReport
+    """
+    index = metrics.track_target_index(tracked, selection.accepted_track_ids)
+    paper = metrics.recording_metrics(recording, index, extrinsics, config)
+    targets = polygon.vehicle_targets(extrinsics, recording, tracked,
+                                      selection.accepted_track_ids, config)
+    passes = _pass_intervals(tracked, recording, selection, config)
+    if refinement is not None:
+        covariance = np.asarray(refinement.covariance, np.float64)
+        source = 'refinement covariance'
+    else:
+        covariance = bootstrap_covariance(extrinsics, targets, passes, config)
+        source = f'bootstrap over {passes.shape[0]} passes ({config.quality.bootstrap} draws)'
+    sigma = uncertainty_from_covariance(covariance, extrinsics.rotation)
+    n_passes = selection.n_passes or int(passes.shape[0])
+    if refinement is not None and refinement.n_passes > 0:
+        n_passes = refinement.n_passes
+    headings = _pass_headings_deg(targets, passes)
+    advice = list(refinement.diagnostics.get('advice', [])) if refinement is not None else []
+    advice += _advice(n_passes, headings, sigma, paper.inlier_ratio, refinement is None,
+                      config)
+    extra = {
+        'sigma_source': source,
+        'vehicle_targets': paper.n_targets,
+        'vehicle_frames': paper.n_frames,
+        'pass_headings_deg': [round(h, 1) for h in headings],
+        'sigma_rotation_covers': 'yaw' if refinement is None else 'roll, pitch, yaw',
+    }
+    if refinement is not None:
+        extra['refinement_targets'] = int(refinement.n_targets)
+    return QualityReport(
+        inlier_ratio=paper.inlier_ratio,
+        outlier_distance_m=paper.outlier_distance_m,
+        closest_target_offset_m=paper.closest_target_offset_m,
+        tracks_used=len(selection.accepted_track_ids),
+        hypotheses=len(selection.hypotheses),
+        correspondences=int(selection.n_correspondences),
+        passes=int(n_passes),
+        time_offset_s=float(extrinsics.time_offset_s + config.sync.time_offset),
+        sigma_translation_m=sigma['translation'],
+        sigma_along_boresight_m=sigma['along'],
+        sigma_across_boresight_m=sigma['across'],
+        sigma_vertical_m=sigma['vertical'],
+        sigma_rotation_deg=sigma['rotation_deg'],
+        advice=tuple(advice),
+        extra=extra)
+
+
+def uncertainty_from_covariance(covariance: F64, rotation: F64) -> dict[str, float]:
+    """1-sigma figures from a (7, 7) (or (6, 6)) covariance over [rotation vector (rad),
+    translation (m), (time offset (s))] in the world frame.
+
+    translation: sqrt of the trace of the translation block; along / across: along and
+    across the horizontal direction of the boresight (the sensor x axis in the world);
+    vertical: z; rotation_deg: sqrt of the trace of the rotation block (the RMS angle).
+    """
+    covariance = np.asarray(covariance, np.float64)
+    if covariance.shape[0] < 6 or not np.all(np.isfinite(covariance[:6, :6])):
+        nan = float('nan')
+        return {'translation': nan, 'along': nan, 'across': nan, 'vertical': nan,
+                'rotation_deg': nan, 'time_offset_s': nan}
+    rot, trans = covariance[:3, :3], covariance[3:6, 3:6]
+    boresight = np.asarray(rotation, np.float64)[:2, 0]
+    norm = np.linalg.norm(boresight)
+    # a radar looking straight down has no horizontal boresight: take world x by convention
+    along = boresight / norm if norm > 1e-9 else np.array([1.0, 0.0])
+    across = np.array([-along[1], along[0]])
+    horizontal = trans[:2, :2]
+    time_var = covariance[6, 6] if covariance.shape[0] > 6 else float('nan')
+    return {
+        'translation': math.sqrt(max(float(np.trace(trans)), 0.0)),
+        'along': math.sqrt(max(float(along @ horizontal @ along), 0.0)),
+        'across': math.sqrt(max(float(across @ horizontal @ across), 0.0)),
+        'vertical': math.sqrt(max(float(trans[2, 2]), 0.0)),
+        'rotation_deg': math.degrees(math.sqrt(max(float(np.trace(rot)), 0.0))),
+        'time_offset_s': math.sqrt(max(float(time_var), 0.0)),
+    }
+
+
+def bootstrap_covariance(extrinsics: Extrinsics, targets: polygon.VehicleTargets,
+                         pass_intervals_ns: I64, config: CalibConfig) -> F64:
+    """(7, 7) covariance of the calibration from a bootstrap over passes.
+
+    Each draw resamples the passes with replacement and re-fits a world-frame BEV
+    correction (yaw, x, y) in closed form from per-pass moments, plus the height from the
+    per-pass mean height difference. Roll and pitch (from the ground plane) and the clock
+    offset are not re-estimated: their rows stay zero.
+
+    Returns NaN when fewer than 2 passes or no draws are available.
+    """
+    n_draws = config.quality.bootstrap
+    n_passes = pass_intervals_ns.shape[0]
+    nan = np.full((7, 7), np.nan)
+    if n_draws == 0 or n_passes < 2 or targets.stamps_ns.size == 0:
+        return nan
+    if config.refine.polygon:
+        closest = polygon.closest_targets(targets, extrinsics.translation_m, config)
+        source_xy, target_xy, stamps = closest.target_xy_m, closest.box_xy_m, closest.stamps_ns
+    else:
+        source_xy, target_xy, stamps = _frame_centres(targets, config)
+    pass_of_frame = _pass_index(stamps, pass_intervals_ns)
+    # height: every target, as stage 6 matched the tracks' mean height
+    reference_z = (targets.positions_m[:, 2] - config.vehicle.ref_height
+                   + config.hypotheses.reflection_height_m)
+    dz = reference_z - targets.world_m[:, 2]
+    pass_of_target = _pass_index(targets.stamps_ns, pass_intervals_ns)
+
+    # centre on common means so the moment subtraction keeps its precision
+    s = source_xy - source_xy.mean(axis=0)
+    t = target_xy - target_xy.mean(axis=0)
+    count = np.bincount(pass_of_frame, minlength=n_passes).astype(np.float64)
+    s_sum = np.column_stack([np.bincount(pass_of_frame, s[:, i], n_passes) for i in range(2)])
+    t_sum = np.column_stack([np.bincount(pass_of_frame, t[:, i], n_passes) for i in range(2)])
+    cross = np.stack([np.column_stack([np.bincount(pass_of_frame, s[:, i] * t[:, j], n_passes)
+                                       for j in range(2)]) for i in range(2)], axis=1)
+    z_count = np.bincount(pass_of_target, minlength=n_passes).astype(np.float64)
+    z_sum = np.bincount(pass_of_target, dz, n_passes)
+
+    rng = np.random.default_rng(config.quality.seed)
+    draws: F64 = rng.multinomial(n_passes, np.full(n_passes, 1.0 / n_passes),
+                                 size=n_draws).astype(np.float64)
+    w = draws @ count
+    usable = (w >= 3) & (draws @ z_count > 0)
+    draws, w = draws[usable], w[usable]
+    if draws.shape[0] < 2:
+        return nan
+    rot2, trans2 = registration.rigid_2d_from_moments(
+        w, draws @ s_sum, draws @ t_sum, np.einsum('bp,pij->bij', draws, cross))
+    # the fit maps centred source to centred target: undo the centring on the sensor
+    sensor_xy = np.asarray(extrinsics.translation_m, np.float64)[:2] - source_xy.mean(axis=0)
+    new_xy = np.einsum('bij,j->bi', rot2, sensor_xy) + trans2 + target_xy.mean(axis=0)
+    yaw = np.arctan2(rot2[:, 1, 0], rot2[:, 0, 0])
+    z = extrinsics.translation_m[2] + (draws @ z_sum) / (draws @ z_count)
+    samples = np.column_stack([yaw, new_xy, z])
+    cov4 = np.atleast_2d(np.cov(samples, rowvar=False))
+    covariance = np.zeros((7, 7))
+    index = np.array([2, 3, 4, 5])
+    covariance[np.ix_(index, index)] = cov4
+    return covariance
+
+
+def _frame_centres(targets: polygon.VehicleTargets,
+                   config: CalibConfig) -> tuple[F64, F64, I64]:
+    """Per frame: the mean BEV position of the vehicle's targets and the footprint centre
+    at that stamp (stage 6's correspondences, before smoothing)."""
+    stamps, inverse = np.unique(targets.stamps_ns, return_inverse=True)
+    count = np.bincount(inverse)
+    centre = np.column_stack([np.bincount(inverse, targets.world_m[:, i]) / count
+                              for i in range(2)])
+    first = np.unique(inverse, return_index=True)[1]
+    x0, x1, _, _ = vehicle_box.box_limits(config.vehicle)
+    forward = np.column_stack([np.full(first.size, 0.5 * (x0 + x1)), np.zeros(first.size)])
+    box_centre = vehicle_box.vehicle_to_world(forward, targets.positions_m[first],
+                                              targets.yaw_rad[first])
+    return centre, box_centre, stamps
+
+
+def _pass_intervals(tracked: TrackedTargets, recording: Recording,
+                    selection: HypothesisSelection, config: CalibConfig) -> I64:
+    """The distinct passes of the accepted tracks (from the selection when it has them)."""
+    if selection.pass_intervals_ns.shape[0] > 0:
+        return selection.pass_intervals_ns
+    index = metrics.track_target_index(tracked, selection.accepted_track_ids)
+    if index.size == 0:
+        return np.zeros((0, 2), np.int64)
+    ids = tracked.track_id[np.isin(tracked.track_id, selection.accepted_track_ids)]
+    stamps = recording.target_stamps_ns[index]
+    uid, inverse = np.unique(ids, return_inverse=True)
+    lo = np.full(uid.size, np.iinfo(np.int64).max, np.int64)
+    hi = np.full(uid.size, np.iinfo(np.int64).min, np.int64)
+    np.minimum.at(lo, inverse, stamps)
+    np.maximum.at(hi, inverse, stamps)
+    return hypotheses.merge_intervals_ns(np.column_stack([lo, hi]),
+                                         config.hypotheses.pass_gap_s)
+
+
+def _pass_index(stamps_ns: I64, pass_intervals_ns: I64) -> I64:
+    """(n,) index of the pass each stamp falls in (the latest pass starting before it)."""
+    idx = np.searchsorted(pass_intervals_ns[:, 0], stamps_ns, side='right') - 1
+    return np.clip(idx, 0, pass_intervals_ns.shape[0] - 1).astype(np.int64)
+
+
+def _pass_headings_deg(targets: polygon.VehicleTargets, pass_intervals_ns: I64) -> list[float]:
+    """Circular mean heading of the vehicle in each pass [deg, ccw from local east]."""
+    if pass_intervals_ns.shape[0] == 0 or targets.stamps_ns.size == 0:
+        return []
+    idx = _pass_index(targets.stamps_ns, pass_intervals_ns)
+    n = pass_intervals_ns.shape[0]
+    c = np.bincount(idx, np.cos(targets.yaw_rad), n)
+    s = np.bincount(idx, np.sin(targets.yaw_rad), n)
+    seen = np.bincount(idx, minlength=n) > 0
+    return [float(v) for v in np.degrees(np.arctan2(s[seen], c[seen]))]
+
+
+def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
+            inlier_ratio: float, bootstrap: bool, config: CalibConfig) -> list[str]:
+    advice: list[str] = []
+    if n_passes < _FEW_PASSES:
+        advice.append(f'Only {n_passes} passes of the calibration vehicle agree; drive '
+                      f'through the view at least {_FEW_PASSES} times, on different lanes '
+                      'and in both directions.')
+    if len(headings_deg) >= 2:
+        h = np.radians(headings_deg)
+        mean = math.atan2(float(np.sin(h).mean()), float(np.cos(h).mean()))
+        spread = np.degrees(np.abs((h - mean + np.pi) % (2 * np.pi) - np.pi)).max()
+        if spread <= _ONE_DIRECTION_DEG:
+            advice.append(f'All {len(headings_deg)} passes drove in one direction (heading '
+                          f'{math.degrees(mean) % 360:.0f} deg); also drive the opposite '
+                          'direction and other lanes, so the car is seen from its other '
+                          'sides.')
+    along = sigma['along']
+    if bootstrap and math.isfinite(along) and along > config.quality.max_boresight_sigma_m:
+        advice.append(f'The position along the boresight is uncertain (1-sigma {along:.2f} '
+                      f'm > {config.quality.max_boresight_sigma_m:g} m); drive across the '
+                      'view (lanes crossing the boresight, turns) rather than only towards '
+                      'and away from the radar.')
+    if math.isfinite(inlier_ratio) and inlier_ratio < _LOW_INLIER_RATIO:
+        advice.append(f'Only {100 * inlier_ratio:.0f} % of the vehicle targets fall in its '
+                      'box; check vehicle.length, width and rear_overhang and the clock '
+                      'offset (sync.time_offset).')
+    return advice

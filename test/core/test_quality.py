@@ -1,0 +1,99 @@
+"""Stage 9: quality figures, the uncertainty (covariance or bootstrap) and the advice."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from calib_scene import make_scene
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core import hypotheses, quality, registration
+from radar_calib_ros.types import Extrinsics, Refinement
+
+
+def _selection(scene):  # type: ignore[no-untyped-def]
+    hyps = hypotheses.generate_hypotheses(scene.tracks, scene.recording, scene.ground,
+                                          scene.config)
+    return hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+                                       scene.config)
+
+
+def test_uncertainty_along_and_across_the_boresight() -> None:
+    cov = np.zeros((7, 7))
+    cov[:3, :3] = np.diag([1e-6, 4e-6, 4e-6])
+    cov[3:6, 3:6] = np.diag([0.09, 0.01, 0.04])   # x, y, z variances [m^2]
+    cov[6, 6] = 1e-6
+    # boresight along world x: along = sigma_x, across = sigma_y
+    s = quality.uncertainty_from_covariance(cov, np.eye(3))
+    assert s['along'] == pytest.approx(0.3) and s['across'] == pytest.approx(0.1)
+    assert s['vertical'] == pytest.approx(0.2)
+    assert s['translation'] == pytest.approx(np.sqrt(0.14))
+    assert s['rotation_deg'] == pytest.approx(np.degrees(3e-3))
+    assert s['time_offset_s'] == pytest.approx(1e-3)
+    # boresight pointing north-west and pitched down: only its horizontal direction counts
+    rot = registration.yaw_rotation(np.radians(135.0)) @ np.array(
+        [[np.cos(0.3), 0, np.sin(0.3)], [0, 1, 0], [-np.sin(0.3), 0, np.cos(0.3)]])
+    s = quality.uncertainty_from_covariance(cov, rot)
+    assert s['along'] == pytest.approx(np.sqrt(0.05)) and s['across'] == pytest.approx(
+        np.sqrt(0.05))
+    assert np.isnan(quality.uncertainty_from_covariance(np.full((7, 7), np.nan),
+                                                        rot)['along'])
+
+
+def test_report_from_a_refinement() -> None:
+    # radar stamps 42 ms late: the configured and the estimated offsets add up
+    cfg = CalibConfig.from_mapping({'sync': {'time_offset': -0.03}})
+    scene = make_scene(n_passes=5, radar_stamp_shift_s=0.042, config=cfg)
+    selection = _selection(scene)
+    cov = np.diag([1e-6, 1e-6, 1e-6, 0.0004, 0.0001, 0.0009, 1e-6])
+    est = Extrinsics(scene.truth.rotation, scene.truth.translation_m, time_offset_s=-0.012)
+    refinement = Refinement(est, cov, n_targets=1234, n_passes=7,
+                            diagnostics={'advice': ['Drive the north lane westbound.']})
+    report = quality.assess_quality(est, refinement, scene.recording, scene.tracked,
+                                    selection, cfg)
+    assert report.time_offset_s == pytest.approx(-0.042)
+    assert report.passes == 7
+    assert report.tracks_used == 5 and report.hypotheses == 5
+    assert report.correspondences == selection.n_correspondences
+    assert report.sigma_vertical_m == pytest.approx(0.03)
+    assert report.sigma_translation_m == pytest.approx(np.sqrt(0.0014))
+    assert report.advice[0] == 'Drive the north lane westbound.'
+    # at the true calibration every target lies in the box (up to the round-off of the
+    # targets placed exactly on its edge)
+    assert report.inlier_ratio > 0.8
+    assert report.outlier_distance_m < 1e-6
+
+
+def test_bootstrap_over_passes_is_seeded_and_grows_with_disagreement() -> None:
+    quiet = make_scene(n_passes=6, seed=1, target_noise_m=0.05)
+    noisy = make_scene(n_passes=6, seed=1, target_noise_m=0.5)
+    reports = []
+    for scene in (quiet, quiet, noisy):
+        selection = _selection(scene)
+        reports.append(quality.assess_quality(scene.truth, None, scene.recording,
+                                              scene.tracked, selection, scene.config))
+    a, b, c = reports
+    assert a.sigma_translation_m == b.sigma_translation_m  # same seed, same draws
+    assert 0.0 < a.sigma_translation_m < 0.05
+    assert c.sigma_translation_m > 3.0 * a.sigma_translation_m
+    assert np.isfinite(a.sigma_rotation_deg) and a.sigma_rotation_deg > 0.0
+    assert 'bootstrap over 6 passes' in a.extra['sigma_source']
+    # no draws: no uncertainty rather than a made-up one
+    cfg = replace(quiet.config, quality=replace(quiet.config.quality, bootstrap=0))
+    report = quality.assess_quality(quiet.truth, None, quiet.recording, quiet.tracked,
+                                    _selection(quiet), cfg)
+    assert np.isnan(report.sigma_translation_m)
+
+
+def test_advice_for_few_passes_in_one_direction() -> None:
+    scene = make_scene(n_passes=3, lanes=[0, 0, 0])
+    selection = _selection(scene)
+    report = quality.assess_quality(scene.truth, None, scene.recording, scene.tracked,
+                                    selection, scene.config)
+    text = ' '.join(report.advice)
+    assert 'Only 3 passes' in text and 'one direction' in text
+    varied = make_scene(n_passes=6)
+    report = quality.assess_quality(varied.truth, None, varied.recording, varied.tracked,
+                                    _selection(varied), varied.config)
+    assert not any('one direction' in a or 'Only' in a for a in report.advice)
