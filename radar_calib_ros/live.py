@@ -44,23 +44,24 @@ from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import CalibrationError, DecodeError, InsufficientDataError
 from radar_calib_ros.io import messages as msgs
 from radar_calib_ros.io.bag import write_bag
-from radar_calib_ros.recording import Recording, RecordingBuilder
+from radar_calib_ros.recording import RecordingBuilder
 from radar_calib_ros.result import load_result, write_result_yaml
 from radar_calib_ros.types import FixSample, OdomSample, QualityReport, RadarFrame
 
 if TYPE_CHECKING:
     from radar_calib_ros.pipeline import CalibrationResult
 
-__all__ = ['CalibrationCancelled', 'DiagnosticStatusOutput', 'LiveCalibrator', 'LogFn', 'TransformOutput',
-           'TriggerOutcome', 'STREAMS']
+    #: What ``run_calibration`` looks like (injectable for tests): called as
+    #: ``run(recording, config, progress=progress)``.
+    RunFn = Callable[..., CalibrationResult]
+
+__all__ = ['CalibrationCancelled', 'DiagnosticStatusOutput', 'LiveCalibrator', 'LogFn',
+           'STREAMS', 'TransformOutput', 'TriggerOutcome']
 
 _LOG = logging.getLogger(__name__)
 
 #: ``log(severity, message)`` with severity one of 'debug', 'info', 'warn', 'error'.
 LogFn = Callable[[str, str], None]
-#: What ``run_calibration`` looks like (injectable for tests): called as
-#: ``run(recording, config, progress=progress)``.
-RunFn = Callable[..., 'CalibrationResult']
 
 #: The three input streams, named as in the diagnostics counters.
 STREAMS = ('radar', 'navsat', 'odom')
@@ -359,10 +360,11 @@ class LiveCalibrator:
         else:
             self._builder.add_odometry(sample)
         self.counters[f'buffered.{stream}'] += 1
-        self._oldest_ns = stamp_ns if self._oldest_ns is None else min(self._oldest_ns,
-                                                                      stamp_ns)
-        self._newest_ns = stamp_ns if self._newest_ns is None else max(self._newest_ns,
-                                                                      stamp_ns)
+        if self._oldest_ns is None or self._newest_ns is None:
+            self._oldest_ns = self._newest_ns = stamp_ns
+        else:
+            self._oldest_ns = min(self._oldest_ns, stamp_ns)
+            self._newest_ns = max(self._newest_ns, stamp_ns)
 
     def _enforce_bounds(self) -> None:
         """Drop the oldest data beyond buffer.max_duration or buffer.max_memory_mb."""
@@ -733,11 +735,10 @@ def _stamp_ns(stamp: Any) -> int | None:
             stamp = _dt.datetime.fromisoformat(stamp)
         except ValueError:
             return None
-    if isinstance(stamp, _dt.datetime):
-        if stamp.tzinfo is None:
-            stamp = stamp.replace(tzinfo=_dt.timezone.utc)
-        return int(stamp.timestamp()) * 1_000_000_000 + stamp.microsecond * 1000
-    return None
+    if not isinstance(stamp, _dt.datetime):
+        return None
+    when: _dt.datetime = stamp if stamp.tzinfo else stamp.replace(tzinfo=_dt.timezone.utc)
+    return int(when.timestamp()) * 1_000_000_000 + when.microsecond * 1000
 
 
 def _fmt_vector(values: tuple[float, ...]) -> str:
@@ -806,4 +807,3 @@ def replace_config(config: CalibConfig, **sections: Any) -> CalibConfig:
     for name, value in sections.items():
         flat[name] = value
     return CalibConfig.from_mapping(flat)
-

@@ -441,8 +441,8 @@ def _corrupt_pointcloud(message: Any, rng: np.random.Generator, specials: list[f
         elif choice == 10:
             message.is_bigendian = not message.is_bigendian
         else:
-            message.header.stamp.sec = int(rng.choice([0, 1, 2**31 - 1, -5,
-                                                        message.header.stamp.sec - 3600]))
+            message.header.stamp.sec = int(rng.choice(
+                [0, 1, 2**31 - 1, -5, message.header.stamp.sec - 3600]))
 
 
 def _corrupt_navsatfix(message: Any, rng: np.random.Generator, specials: list[float]) -> None:
@@ -459,8 +459,8 @@ def _corrupt_navsatfix(message: Any, rng: np.random.Generator, specials: list[fl
         elif choice == 4:
             message.header.stamp.nanosec = int(rng.choice([0, 999_999_999, 2**32 - 1]))
         else:
-            message.header.stamp.sec = int(rng.choice([0, 2**31 - 1, -1,
-                                                        message.header.stamp.sec + 7200]))
+            message.header.stamp.sec = int(rng.choice(
+                [0, 2**31 - 1, -1, message.header.stamp.sec + 7200]))
 
 
 # --- calibrate ---------------------------------------------------------------------------
