@@ -446,6 +446,7 @@ class LiveCalibrator:
             result.quality
         self._failure = None
         summary = self._summary(calibration, result.quality, config)
+        self._source = f'computed at {calibration["stamp"]}'
         try:
             write_result_yaml(config.output.path, calibration)
         except OSError as err:
@@ -456,8 +457,7 @@ class LiveCalibrator:
             summary += f'; WARNING: {self._file_problem}'
         else:
             self._file_problem = None
-            self._source = f'calibrated at {calibration["stamp"]}, written to ' \
-                           f'{config.output.path}'
+            self._source += f', written to {config.output.path}'
         self._log('info', f'{summary} ({elapsed:.1f} s on {frames} radar frames)')
         return TriggerOutcome(True, summary, transform)
 
@@ -564,7 +564,7 @@ class LiveCalibrator:
             return None
         self._transform, self._calibration, self._quality = transform, calibration, None
         self._file_problem = None
-        self._source = f'loaded from {path} (calibrated at {calibration.get("stamp", "?")})'
+        self._source = f'loaded from {path} (computed at {calibration.get("stamp", "?")})'
         self._log('info', f'calibration {self._source}: {transform.parent_frame} -> '
                   f'{transform.child_frame} at {_fmt_vector(transform.translation_m)}')
         return transform

@@ -643,3 +643,15 @@ def test_builder_snapshot_is_independent_and_samples_are_in_stamp_order() -> Non
     assert [s.stamp_ns for s in snapshot.samples()] == [10, 20, 30]
     assert snapshot.nbytes() == snapshot._count_nbytes()
     assert builder.nbytes() == builder._count_nbytes()
+
+
+def test_unwritable_result_file_still_publishes_and_says_so(tmp_path: Path, store: Any) -> None:
+    (tmp_path / 'blocker').write_text('')
+    live, log = make_live(tmp_path, **{'output.path': str(tmp_path / 'blocker' / 'r.yaml')})
+    feed(live, store, 1.0)
+    outcome = live.calibrate()
+    assert outcome.success and outcome.transform is not None
+    assert 'WARNING: result file' in outcome.message and 'not written' in outcome.message
+    status = live.diagnostics()[0]
+    assert status.level == 'ERROR' and 'not written' in status.message
+    assert 'serving the calibration computed at' in status.message
