@@ -655,3 +655,93 @@ def test_unwritable_result_file_still_publishes_and_says_so(tmp_path: Path, stor
     status = live.diagnostics()[0]
     assert status.level == 'ERROR' and 'not written' in status.message
     assert 'serving the calibration computed at' in status.message
+
+
+# --- end to end: a simulated drive, the real pipeline, the offline tool ------------------
+
+SIM_SECONDS = 120.0  # 5 passes of the calibration vehicle, ~1,800 radar frames
+
+
+@pytest.fixture(scope='module')
+def sim_drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from radar_calib_ros.sim import simulate
+
+    path = tmp_path_factory.mktemp('sim') / 'drive'
+    simulate(path, seed=3, duration_s=SIM_SECONDS, scenario='baseline')
+    return path
+
+
+def live_for_bag(bag: Path, tmp_path: Path) -> tuple[LiveCalibrator, LogRecorder]:
+    """A LiveCalibrator configured as the node would be from the bag's parameters file."""
+    from radar_calib_ros.config import read_params_file
+
+    values = read_params_file(bag / 'params.yaml')
+    values.update({'output.path': str(tmp_path / 'live.yaml'),
+                   'output.recording_dir': str(tmp_path / 'recordings')})
+    log = LogRecorder()
+    return LiveCalibrator(CalibConfig.from_mapping(values), log=log), log
+
+
+def play(live: LiveCalibrator, bag: Path) -> int:
+    """Every message of the bag, in recording (receive) order, as the node receives them."""
+    from rosbags.highlevel import AnyReader
+
+    handlers = {msgs.POINTCLOUD2: live.on_radar, msgs.NAVSATFIX: live.on_navsat,
+                msgs.ODOMETRY: live.on_odometry}
+    count = 0
+    with AnyReader([bag], default_typestore=msgs.get_typestore()) as reader:
+        for connection, _, raw in reader.messages():
+            if connection.msgtype in handlers:
+                handlers[connection.msgtype](reader.deserialize(raw, connection.msgtype))
+                count += 1
+    return count
+
+
+def test_live_calibration_equals_the_offline_tool(sim_drive: Path, tmp_path: Path) -> None:
+    from radar_calib_ros.cli import main as radar_calib
+
+    live, log = live_for_bag(sim_drive, tmp_path)
+    received = play(live, sim_drive)
+    assert received > 10_000
+    assert not [k for k in live.counters if k.startswith('rejected.radar.')]
+    assert live.counters['restarts'] == 0
+    outcome = live.calibrate()
+    assert outcome.success, outcome.message
+    assert outcome.message.startswith('calibrated radar in utm (EPSG 32632)')
+
+    offline = tmp_path / 'offline.yaml'
+    assert radar_calib(['calibrate', str(sim_drive), '--params',
+                        str(sim_drive / 'params.yaml'), '--output', str(offline)]) == 0
+    expected, got = load_result(offline), load_result(tmp_path / 'live.yaml')
+    assert got['translation'] == pytest.approx(expected['translation'], abs=1e-6)
+    assert got['quaternion_xyzw'] == pytest.approx(expected['quaternion_xyzw'], abs=1e-9)
+    assert got['quality']['passes'] == expected['quality']['passes']
+    assert outcome.transform is not None
+    translation = list(outcome.transform.translation_m)
+    assert translation == pytest.approx(expected['translation'], abs=1e-6)
+
+    # save_recording: the offline tool reads back exactly what the node buffered
+    saved = live.save_recording()
+    assert saved.success, saved.message
+    bag = next((tmp_path / 'recordings').iterdir())
+    original = read_recording(sim_drive, live.config)
+    again = read_recording(bag, live.config)
+    np.testing.assert_array_equal(again.frame_stamps_ns, original.frame_stamps_ns)
+    np.testing.assert_array_equal(again.targets.positions_m, original.targets.positions_m)
+    np.testing.assert_array_equal(again.targets.radial_velocity_mps,
+                                  original.targets.radial_velocity_mps)
+    np.testing.assert_array_equal(again.vehicle.positions_m, original.vehicle.positions_m)
+    np.testing.assert_array_equal(again.vehicle.yaw_rad, original.vehicle.yaw_rad)
+
+
+def test_live_calibration_failure_gives_the_pipeline_reason(tmp_path: Path) -> None:
+    from radar_calib_ros.sim import simulate
+
+    bag = tmp_path / 'away'
+    simulate(bag, seed=1, duration_s=60.0, scenario='vehicle_never_in_view')
+    live, _ = live_for_bag(bag, tmp_path)
+    play(live, bag)
+    outcome = live.calibrate()
+    assert not outcome.success and outcome.message.startswith('calibration failed: ')
+    assert not (tmp_path / 'live.yaml').exists()
+    assert live.diagnostics()[0].level == 'ERROR'

@@ -31,6 +31,7 @@ from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.time import Time  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 from sensor_msgs.msg import NavSatFix, PointCloud2  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
@@ -175,9 +176,8 @@ def test_calibrate_publish_latched_and_republish_after_restart(tmp_path: Path,
         buffer = tf2_ros.Buffer()
         listener = tf2_ros.TransformListener(buffer, harness.helper)
         try:
-            assert wait_for(lambda: buffer.can_transform('utm', 'radar',
-                                                         rclpy.time.Time()))
-            looked_up = buffer.lookup_transform('utm', 'radar', rclpy.time.Time())
+            assert wait_for(lambda: buffer.can_transform('utm', 'radar', Time()))
+            looked_up = buffer.lookup_transform('utm', 'radar', Time())
             assert looked_up.transform.translation.x == pytest.approx(t.x, abs=1e-9)
             assert looked_up.transform.rotation.w == pytest.approx(q.w, abs=1e-12)
         finally:
