@@ -32,6 +32,7 @@ import logging
 import math
 import threading
 import time
+import traceback
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -439,6 +440,14 @@ class LiveCalibrator:
             self._failure = reason
             self._log('error', f'calibration failed: {reason} (buffer: {frames} radar frames, '
                       f'{fixes} fixes, {odoms} odometry samples)')
+            return TriggerOutcome(False, f'calibration failed: {reason}')
+        except Exception as err:  # noqa: BLE001 - a bug; see below
+            # An exception out of a service callback stops rclpy's executor, i.e. the
+            # roadside unit and the calibration it serves. The traceback is logged in full
+            # and the caller told it is a bug; the node keeps serving the last calibration.
+            reason = f'internal error (a bug, please report): {type(err).__name__}: {err}'
+            self._failure = reason
+            self._log('error', f'calibration failed with an {reason}\n{traceback.format_exc()}')
             return TriggerOutcome(False, f'calibration failed: {reason}')
         elapsed = time.perf_counter() - start
         transform = _transform_from(calibration, self._now_ns())

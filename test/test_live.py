@@ -745,3 +745,15 @@ def test_live_calibration_failure_gives_the_pipeline_reason(tmp_path: Path) -> N
     assert not outcome.success and outcome.message.startswith('calibration failed: ')
     assert not (tmp_path / 'live.yaml').exists()
     assert live.diagnostics()[0].level == 'ERROR'
+
+
+def test_a_bug_in_the_pipeline_is_reported_not_raised(tmp_path: Path, store: Any) -> None:
+    live, log = make_live(tmp_path, run=fake_run(error=np.linalg.LinAlgError('not pd')))
+    feed(live, store, 1.0)
+    outcome = live.calibrate()
+    assert not outcome.success
+    assert outcome.message == ('calibration failed: internal error (a bug, please report): '
+                               'LinAlgError: not pd')
+    assert [s for s, m in log.lines if 'Traceback' in m] == ['error']
+    assert live.diagnostics()[0].level == 'ERROR'
+    assert not live.calibrating
