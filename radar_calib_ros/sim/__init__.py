@@ -1,0 +1,299 @@
+"""The simulator behind ``radar-calib simulate``: a roadside radar at a busy junction.
+
+Our only source of truth, so it is built to be as hard as the real world: a radar on a
+pole geo-referenced at a real site, traffic that follows lanes, stops at signals and
+queues, reflections from where a radar really sees road users (``scatter``), occlusion,
+clutter, multipath ghosts, false alarms, timing jitter and dropped cycles, and an RTK
+GNSS/INS with noise and outages. See ``scenario.SCENARIOS`` for the named settings.
+
+Stages (each its own module, each seeded from its own stream so that e.g. the scatter
+model does not change the traffic):
+
+``scenario`` -> ``roads`` (lanes, routes) -> ``traffic`` (IDM, signals, calibration drive)
+-> ``world`` (static scene) + ``scatter`` (regions per road user) -> ``radar`` (targets)
++ ``gnss`` (NavSatFix / Odometry) -> ``writer`` (bag, ground truth, parameters).
+
+Everything is simulated in the site's local metric frame (``io.geo.LocalFrame`` centred on
+the junction) and converted to WGS 84 / UTM at the edges, exactly as the tool converts
+back.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import time
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from radar_calib_ros.errors import BagReadError, ConfigError
+from radar_calib_ros.io.geo import LocalFrame
+from radar_calib_ros.result import calibration_dict
+from radar_calib_ros.sim.gnss import simulate_gnss, vehicle_poses
+from radar_calib_ros.sim.radar import RadarModel, RadarPose, frame_times, simulate_radar
+from radar_calib_ros.sim.roads import Junction
+from radar_calib_ros.sim.scatter import (
+    DEFAULT_SCATTER_MODEL, KIND_NAMES, SCATTER_MODELS, build_templates, check_scatter_model)
+from radar_calib_ros.sim.scenario import (
+    SCENARIOS, Scenario, get_scenario, mount_rotation, perturbed_mount)
+from radar_calib_ros.sim.traffic import CLASS_NAMES, TrafficLog, simulate_traffic
+from radar_calib_ros.sim.world import build_scene
+from radar_calib_ros.sim.writer import (
+    GROUND_TRUTH_FILE, PARAMS_FILE, TARGETS_FILE, write_ground_truth, write_params,
+    write_recording, write_targets)
+from radar_calib_ros.types import Extrinsics
+
+__all__ = ['SCENARIOS', 'SCATTER_MODELS', 'DEFAULT_SCATTER_MODEL', 'CLASS_NAMES',
+           'KIND_NAMES', 'SimulationPaths', 'SimulationSummary', 'simulate']
+
+#: Recording start of every simulation (UTC); stamps are deterministic per seed.
+_EPOCH = _dt.datetime(2024, 6, 4, 7, 30, tzinfo=_dt.timezone.utc)
+_STORAGES = ('mcap', 'sqlite3')
+
+
+@dataclass(frozen=True)
+class SimulationPaths:
+    """Files of one simulation; ``bag`` is the rosbag2 directory holding the others."""
+
+    bag: Path
+    ground_truth: Path
+    params: Path
+    targets: Path
+
+
+@dataclass(frozen=True)
+class SimulationSummary:
+    """What :func:`simulate` wrote.
+
+    truth : the content of ``ground_truth.json``; extrinsics : the true calibration in
+    ``frame`` (the simulator's local frame, centred on the junction).
+    """
+
+    paths: SimulationPaths
+    n_frames: int
+    n_targets: int
+    n_passes: int
+    truth: dict[str, Any]
+    extrinsics: Extrinsics
+    frame: LocalFrame
+    elapsed_s: float
+
+
+def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
+             storage: str = 'mcap', scenario: str = 'baseline',
+             scatter_model: str | None = None) -> SimulationSummary:
+    """Simulate a calibration drive past a roadside radar and write it as a rosbag2 bag.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The bag directory to create (it must not exist). It receives ``metadata.yaml`` and
+        the storage file, plus ``ground_truth.json``, ``params.yaml`` and
+        ``ground_truth_targets.npz``.
+    seed : int, default=0
+        Same seed, scenario, duration and model -> identical bag contents.
+    duration_s : float, default=600.0
+        Length of the recording [s] (10 s to 2 h); the number of passes of the calibration
+        vehicle grows with it (about one a minute, at least 4, at most 15).
+    storage : {'mcap', 'sqlite3'}, default='mcap'
+    scenario : str, default='baseline'
+        One of :data:`SCENARIOS`.
+    scatter_model : {'skin', 'interior', 'mixed'} or None
+        Where on road users the radar sees them; None = :data:`DEFAULT_SCATTER_MODEL`.
+
+    Returns
+    -------
+    SimulationSummary
+
+    Raises
+    ------
+    ConfigError
+        Unknown scenario, scatter model or storage, or a duration out of range.
+    BagReadError
+        ``out_dir`` exists already, or the bag cannot be written.
+    """
+    started = time.perf_counter()
+    spec = get_scenario(scenario)
+    model_name = check_scatter_model(scatter_model)
+    if storage not in _STORAGES:
+        raise ConfigError(f'unknown bag storage {storage!r}; use mcap or sqlite3')
+    if not (10.0 <= float(duration_s) <= 7200.0):
+        raise ConfigError(f'duration {duration_s} s is outside [10, 7200] s')
+    if not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f'seed must be a non-negative integer, got {seed!r}')
+    out = Path(out_dir)
+    if out.exists():
+        raise BagReadError(f'{str(out)!r} exists already; not overwriting')
+    duration = float(duration_s)
+    streams = np.random.SeedSequence([seed, zlib.crc32(spec.name.encode())]).spawn(10)
+    rngs = [np.random.default_rng(s) for s in streams]
+    (r_mount, r_drive, r_traffic, r_scene, r_scatter, r_times, r_radar, r_gnss, r_stamps,
+     r_clock) = rngs
+
+    # --- world, radar mount, traffic --------------------------------------------------
+    frame = LocalFrame.at(spec.site.lat_deg, spec.site.lon_deg)
+    junction = Junction(spec.junction)
+    mount = perturbed_mount(spec.radar, r_mount)
+    scene = build_scene(spec, junction, r_scene)
+    rotation, _ = mount_rotation(mount)
+    xy = np.asarray(mount.position_xy_m, float)
+    translation = np.array([xy[0], xy[1], float(scene.ground.z(xy)) + mount.height_m])
+    pose = RadarPose(rotation, translation)
+    log = simulate_traffic(spec, junction, duration, r_traffic, r_drive)
+    templates = build_templates(log.users, model_name, r_scatter)
+
+    # --- radar --------------------------------------------------------------------------
+    radar_model = RadarModel()
+    times = frame_times(duration, radar_model, r_times)
+    targets = simulate_radar(log, templates, scene, pose, radar_model, times, r_radar)
+    if spec.clock_offset_s is None:
+        clock_offset = float(r_clock.uniform(-0.002, 0.002))
+    else:
+        clock_offset = float(spec.clock_offset_s)
+    epoch_ns = int(_EPOCH.timestamp()) * 1_000_000_000 + 1_000_000_000 * 3600 * (
+        list(SCENARIOS).index(spec.name))
+    # header stamp = radar clock = GNSS time - offset, time-tagged to ~0.3 ms
+    radar_stamp_s = times - clock_offset + r_stamps.normal(0.0, 0.0003, times.size)
+    radar_stamps_ns = epoch_ns + np.round(radar_stamp_s * 1e9).astype(np.int64)
+    radar_receive_ns = epoch_ns + np.round((times + r_stamps.uniform(0.025, 0.045, times.size))
+                                           * 1e9).astype(np.int64)
+
+    # --- GNSS / INS ---------------------------------------------------------------------
+    gnss = simulate_gnss(log, frame, scene.ground, spec.vehicle, duration, r_gnss)
+    gnss_stamps_ns = epoch_ns + np.round(gnss.time_s * 1e9).astype(np.int64)
+    m = gnss.time_s.size
+    fix_receive_ns = gnss_stamps_ns + np.round(r_stamps.uniform(0.003, 0.008, m) * 1e9).astype(
+        np.int64)
+    odom_receive_ns = (gnss_stamps_ns + np.round(r_stamps.uniform(0.002, 0.006, m) * 1e9)
+                       .astype(np.int64)) if spec.odometry else None
+
+    # --- files ----------------------------------------------------------------------------
+    n_messages = write_recording(
+        out, targets=targets, radar_stamps_ns=radar_stamps_ns,
+        radar_receive_ns=radar_receive_ns, gnss=gnss, gnss_stamps_ns=gnss_stamps_ns,
+        fix_receive_ns=fix_receive_ns, odom_receive_ns=odom_receive_ns,
+        layout=spec.point_layout, velocity_field=spec.velocity_field, storage=storage)
+    extrinsics = Extrinsics(rotation, translation, clock_offset)
+    passes = _passes(log, junction, times, targets)
+    truth = _truth(spec, seed, model_name, duration, frame, extrinsics, mount, scene.ground.z(
+        xy), passes, log, templates.skin_weight[0], gnss, times.size, targets,
+        epoch_ns, n_messages)
+    paths = SimulationPaths(out, out / GROUND_TRUTH_FILE, out / PARAMS_FILE, out / TARGETS_FILE)
+    write_ground_truth(paths.ground_truth, truth)
+    veh = spec.vehicle
+    write_params(paths.params, odometry=spec.odometry, vehicle={
+        'length': veh.length, 'width': veh.width, 'height': veh.height,
+        'rear_overhang': veh.rear_overhang, 'ref_height': veh.ref_height},
+        header=f'Parameters for the simulated recording {out.name}: scenario '
+               f'{spec.name!r}, seed {seed}.\nThe calibration tool may use them; it never '
+               'reads ground_truth*.')
+    poses = vehicle_poses(log, scene.ground, spec.vehicle, times)
+    write_targets(paths.targets, {
+        'frame_index': targets.frame.astype(np.int32),
+        'object_id': targets.object_id.astype(np.int32),
+        'object_class': targets.object_class,
+        'is_calibration_vehicle': targets.object_id == 0,
+        'scatter_kind': targets.kind,
+        # float32 as in the bag: millimetre resolution, half the size
+        'position_true_sensor_m': targets.position_true_m.astype(np.float32),
+        'position_sensor_m': targets.position_m.astype(np.float32),
+        'radial_velocity_true_mps': targets.radial_velocity_true_mps.astype(np.float32),
+        'frame_stamp_ns': radar_stamps_ns,
+        'frame_time_s': times,
+        'vehicle_position_m': poses.position_m,
+        'vehicle_yaw_rad': poses.yaw_rad,
+        'vehicle_speed_mps': poses.speed_mps,
+        'vehicle_yaw_rate_rps': poses.yaw_rate_rps,
+        'radar_rotation': rotation,
+        'radar_translation_m': translation,
+        'class_names': np.asarray(CLASS_NAMES),
+        'kind_names': np.asarray(KIND_NAMES),
+        'local_frame': np.array([frame.lat0_deg, frame.lon0_deg, frame.epsg], float),
+    })
+    return SimulationSummary(paths, int(times.size), int(targets.frame.size), len(passes),
+                             truth, extrinsics, frame, time.perf_counter() - started)
+
+
+def _passes(log: TrafficLog, junction: Junction, times: np.ndarray,
+            targets: Any) -> list[dict[str, Any]]:
+    """The calibration vehicle's passes that crossed the junction within the recording."""
+    drive = log.drive
+    if drive.mode == 'away' or not drive.passes:
+        return []
+    t_series, s_series, v_series = log.vehicle_series(0)
+    end = float(times[-1]) if times.size else 0.0
+    cal = targets.object_id == 0
+    cal_times = times[targets.frame[cal]]
+    out = []
+    for k, (entry, exit_, lane_in, lane_out) in enumerate(drive.passes):
+        s_start, s_stop, s_end = drive.pass_s[k]
+        t_start, t_stop, t_end = (float(np.interp(x, s_series, t_series))
+                                  for x in (s_start, s_stop, s_end))
+        if t_stop < 0.0 or t_stop > end or s_series[-1] < s_stop:
+            continue
+        within = (t_series >= t_start) & (t_series <= t_end)
+        stopped = float(np.count_nonzero(within & (v_series < 0.1)) * (
+            t_series[1] - t_series[0]))
+        n_seen = int(np.count_nonzero((cal_times >= t_start) & (cal_times <= t_end)))
+        out.append({
+            'index': k, 'entry_arm': int(entry), 'exit_arm': int(exit_),
+            'movement': drive.movements[k], 'lane_in': int(lane_in), 'lane_out': int(lane_out),
+            'heading_in_deg': _arm_heading(junction, entry, inbound=True),
+            'heading_out_deg': _arm_heading(junction, exit_, inbound=False),
+            't_start_s': max(t_start, 0.0), 't_stop_line_s': t_stop,
+            't_end_s': min(t_end, end), 'stopped_s': stopped, 'n_targets': n_seen})
+    return out
+
+
+def _arm_heading(junction: Junction, arm: int, *, inbound: bool) -> float:
+    """ENU heading of travel on an arm (local grid, deg, counter-clockwise from east, in
+    [0, 360)): inbound traffic drives towards the centre, against the arm's direction."""
+    angle = math.degrees(junction.arms[arm].angle_rad) + (180.0 if inbound else 0.0)
+    return angle % 360.0
+
+
+def _truth(spec: Scenario, seed: int, model: str, duration: float, frame: LocalFrame,
+           extrinsics: Extrinsics, mount: Any, ground_z: Any, passes: list[dict[str, Any]],
+           log: TrafficLog, skin_weight: float, gnss: Any, n_frames: int, targets: Any,
+           epoch_ns: int, n_messages: int) -> dict[str, Any]:
+    stamp = _dt.datetime.fromtimestamp(epoch_ns / 1e9, _dt.timezone.utc).isoformat(
+        timespec='seconds')
+    truth = calibration_dict(extrinsics, frame, stamp=stamp)
+    rpy = Rotation.from_matrix(extrinsics.rotation).as_euler('xyz', degrees=True)
+    veh = spec.vehicle
+    truth.update({
+        'scenario': spec.name,
+        'description': spec.description,
+        'seed': seed,
+        'scatter_model': model,
+        'calibration_vehicle_skin_weight': float(skin_weight),
+        'duration_s': duration,
+        'time_offset_s': extrinsics.time_offset_s,
+        'radar_height_m': float(extrinsics.translation_m[2] - ground_z),
+        'radar_mount_local': {
+            'translation_m': [float(v) for v in extrinsics.translation_m],
+            'rpy_deg': [float(v) for v in rpy],
+            'pitch_down_deg': float(mount.pitch_deg), 'roll_deg': float(mount.roll_deg)},
+        'local_frame': {'lat0_deg': frame.lat0_deg, 'lon0_deg': frame.lon0_deg,
+                        'epsg': int(frame.epsg)},
+        'site': spec.site.name,
+        'vehicle': {'length': veh.length, 'width': veh.width, 'height': veh.height,
+                    'rear_overhang': veh.rear_overhang, 'ref_height': veh.ref_height},
+        'drive_mode': log.drive.mode,
+        'n_passes': len(passes),
+        'passes': passes,
+        'n_frames': n_frames,
+        'n_targets': int(targets.frame.size),
+        'n_calibration_vehicle_targets': int(np.count_nonzero(targets.object_id == 0)),
+        'n_messages': n_messages,
+        'gnss_outages_s': gnss.outages_s.tolist(),
+        'point_layout': spec.point_layout,
+        'velocity_field': spec.velocity_field,
+        'odometry': spec.odometry,
+        'stamp_origin_ns': epoch_ns,
+    })
+    return truth
