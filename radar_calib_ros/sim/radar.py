@@ -328,30 +328,33 @@ def _occluded(c_frame: I64, c_point: F64, c_obj: I64, o_frame: I64, o_obj: I64, 
     blocked = np.zeros(c_frame.size, bool)
     if c_frame.size == 0 or o_frame.size == 0:
         return blocked
-    order = np.argsort(o_frame, kind='stable')
-    o_frame, o_obj, o_xy = o_frame[order], o_obj[order], o_xy[order]
-    o_heading, o_ground = o_heading[order], o_ground[order]
-    o_start = np.searchsorted(o_frame, np.arange(n_frames + 1))
-    per = o_start[c_frame + 1] - o_start[c_frame]
-    ci = np.repeat(np.arange(c_frame.size), per)
-    oi = np.repeat(o_start[c_frame], per) + (np.arange(ci.size) - np.repeat(
-        np.cumsum(per) - per, per))
-    not_self = o_obj[oi] != c_obj[ci]
-    ci, oi = ci[not_self], oi[not_self]
-    # cheap prefilter on bearings and ranges computed once per point and per occluder:
-    # the occluder must be nearer than the point and cover its bearing
     users = log.users
+    # pair each point only with the occluders covering its bearing: occluders are spread
+    # over 1-degree bearing bins, points looked up in them (one sort, two searches)
     d_pt = np.hypot(c_point[:, 0] - radar[0], c_point[:, 1] - radar[1])
     b_pt = np.arctan2(c_point[:, 1] - radar[1], c_point[:, 0] - radar[0])
     d_oc = np.hypot(o_xy[:, 0] - radar[0], o_xy[:, 1] - radar[1])
     b_oc = np.arctan2(o_xy[:, 1] - radar[1], o_xy[:, 0] - radar[0])
     reach = users.length[o_obj]
     width = np.arctan2(reach, np.maximum(d_oc - reach, 0.5))
-    dist_ok = (d_oc - reach)[oi] < d_pt[ci]
-    ci, oi = ci[dist_ok], oi[dist_ok]
-    diff = np.abs((b_pt[ci] - b_oc[oi] + math.pi) % (2.0 * math.pi) - math.pi)
-    close = diff < width[oi]
-    ci, oi = ci[close], oi[close]
+    n_bins = 360
+    scale = n_bins / (2.0 * math.pi)
+    lo = np.floor((b_oc - width) * scale).astype(np.int64)
+    count = np.floor((b_oc + width) * scale).astype(np.int64) - lo + 1
+    o_rep = np.repeat(np.arange(o_frame.size), count)
+    bins = (np.repeat(lo, count) + np.arange(o_rep.size)
+            - np.repeat(np.cumsum(count) - count, count)) % n_bins
+    o_key = o_frame[o_rep] * n_bins + bins
+    order = np.argsort(o_key, kind='stable')
+    o_key, o_rep = o_key[order], o_rep[order]
+    c_key = c_frame * n_bins + np.floor(b_pt * scale).astype(np.int64) % n_bins
+    first = np.searchsorted(o_key, c_key, 'left')
+    per = np.searchsorted(o_key, c_key, 'right') - first
+    ci = np.repeat(np.arange(c_frame.size), per)
+    within = np.arange(ci.size) - np.repeat(np.cumsum(per) - per, per)
+    oi = o_rep[np.repeat(first, per) + within]
+    keep = (o_obj[oi] != c_obj[ci]) & ((d_oc - reach)[oi] < d_pt[ci])
+    ci, oi = ci[keep], oi[keep]
     ident = o_obj[oi]
     if ci.size == 0:
         return blocked
@@ -421,21 +424,22 @@ def _ghosts(scene: StaticScene, pose: RadarPose, model: RadarModel, frame: I64, 
         t_hat = d / wlen[:, None]
         n_hat = np.column_stack([-t_hat[:, 1], t_hat[:, 0]])
         side_radar = np.sum((radar[:2] - a) * n_hat, axis=1)
-        ci, wi = np.nonzero(rng.random((frame.size, walls.shape[0]))
-                            < model.wall_ghost_probability)
-        rel = point[ci, :2] - a[wi]
-        side_pt = np.sum(rel * n_hat[wi], axis=1)
-        same = np.sign(side_pt) == np.sign(side_radar[wi])
-        img_xy = point[ci, :2] - 2.0 * side_pt[:, None] * n_hat[wi]
-        # specular point: where radar -> image crosses the wall line
-        r_side = side_radar[wi]
-        frac = r_side / np.where(r_side - (-side_pt) == 0, 1e-9, r_side + side_pt)
-        spec = radar[:2] + frac[:, None] * (img_xy - radar[:2])
-        along = np.sum((spec - a[wi]) * t_hat[wi], axis=1)
-        z_spec = radar[2] + frac * (point[ci, 2] - radar[2])
-        ok = same & (along > 0.0) & (along < wlen[wi]) & (z_spec < scene.wall_top_m[wi]) & (
-            np.abs(side_pt) > 0.5)
-        ci, wi, img_xy = ci[ok], wi[ok], img_xy[ok]
+        # the whole test as (n points, w walls) matrices: signed distance to the wall
+        # line, and where the ray radar -> mirror image crosses it (mirroring keeps the
+        # coordinate along the wall)
+        side_all = point[:, :2] @ n_hat.T - np.sum(a * n_hat, axis=1)
+        along_pt = point[:, :2] @ t_hat.T - np.sum(a * t_hat, axis=1)
+        along_radar = np.sum((radar[:2] - a) * t_hat, axis=1)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            frac = side_radar / (side_radar + side_all)
+        along = along_radar + frac * (along_pt - along_radar)
+        z_spec = radar[2] + frac * (point[:, 2:3] - radar[2])
+        ok = ((np.sign(side_all) == np.sign(side_radar)) & (np.abs(side_all) > 0.5)
+              & (along > 0.0) & (along < wlen) & (z_spec < scene.wall_top_m))
+        ci, wi = np.nonzero(ok)
+        keep = rng.random(ci.size) < model.wall_ghost_probability
+        ci, wi = ci[keep], wi[keep]
+        img_xy = point[ci, :2] - 2.0 * side_all[ci, wi][:, None] * n_hat[wi]
         if ci.size:
             img = np.column_stack([img_xy, point[ci, 2]])
             nv = np.sum(vel[ci, :2] * n_hat[wi], axis=1)

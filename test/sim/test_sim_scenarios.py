@@ -1,0 +1,87 @@
+"""Every named scenario runs and has the character its description promises."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+
+from radar_calib_ros.io import messages as msgs
+from radar_calib_ros.io.geo import LocalFrame
+from radar_calib_ros.sim import SCENARIOS, simulate
+from radar_calib_ros.sim.scenario import get_scenario, mount_rotation, perturbed_mount
+from sim_truth import load
+
+
+def _topics_and_fields(bag: Path) -> tuple[dict[str, int], list[str]]:
+    with AnyReader([bag], default_typestore=msgs.get_typestore()) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        radar = [c for c in reader.connections if c.topic == '/radar/points']
+        _, _, raw = next(reader.messages(connections=radar))
+        cloud = reader.deserialize(raw, radar[0].msgtype)
+        assert cloud.header.frame_id == 'radar'
+        return counts, [f.name for f in cloud.fields]
+
+
+@pytest.mark.parametrize('name', sorted(SCENARIOS))
+def test_scenario_runs(name: str, tmp_path: Path) -> None:
+    sim = simulate(tmp_path / name, seed=1, duration_s=12.0, scenario=name)
+    truth = sim.truth
+    spec = get_scenario(name)
+    counts, fields = _topics_and_fields(sim.paths.bag)
+    assert counts['/radar/points'] == sim.n_frames > 150
+    assert counts['/vehicle/fix'] == 601
+    assert ('/vehicle/odom' in counts) == spec.odometry
+    if spec.point_layout == 'spherical':
+        assert fields[:3] == ['range', 'azimuth', 'elevation']
+    else:
+        assert fields[:3] == ['x', 'y', 'z']
+    assert spec.velocity_field in fields and 'rcs' in fields
+    assert 4.0 <= truth['radar_height_m'] <= 9.0
+    if spec.clock_offset_s is not None:
+        assert truth['time_offset_s'] == pytest.approx(spec.clock_offset_s)
+    assert abs(truth['latitude'] - spec.site.lat_deg) < 0.01
+    # the truth file's UTM zone is the site's (southern sites 327xx)
+    assert truth['epsg'] == (32700 if spec.site.lat_deg < 0 else 32600) + int(
+        (spec.site.lon_deg + 180) // 6) + 1
+    _, z = load(sim.paths.bag)
+    assert z['frame_index'].size == sim.n_targets > 50 * sim.n_frames
+
+
+def test_clock_offset_shifts_radar_stamps(tmp_path: Path) -> None:
+    """Radar header stamp + time_offset_s = GNSS time of the measurement."""
+    sim = simulate(tmp_path / 'c', seed=2, duration_s=12.0, scenario='clock_offset')
+    truth, z = load(sim.paths.bag)
+    gnss_time = (z['frame_stamp_ns'] - truth['stamp_origin_ns']) * 1e-9 + truth['time_offset_s']
+    assert np.max(np.abs(gnss_time - z['frame_time_s'])) < 0.002
+    assert truth['time_offset_s'] == pytest.approx(0.040)
+
+
+def test_mounts_stay_in_real_ranges() -> None:
+    rng = np.random.default_rng(0)
+    for name in SCENARIOS:
+        for _ in range(20):
+            mount = perturbed_mount(get_scenario(name).radar, rng)
+            assert 4.0 <= mount.height_m <= 9.0
+            assert 3.0 <= mount.pitch_deg <= 15.0
+            assert abs(mount.roll_deg) <= 2.0
+            rotation, yaw = mount_rotation(mount)
+            np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+            diff = math.atan2(rotation[1, 0], rotation[0, 0]) - yaw
+            assert abs((diff + math.pi) % (2 * math.pi) - math.pi) < 1e-9
+
+
+def test_sites_cover_convergence_and_hemispheres() -> None:
+    convergence = {}
+    for name in SCENARIOS:
+        site = get_scenario(name).site
+        frame = LocalFrame.at(site.lat_deg, site.lon_deg)
+        convergence[name] = math.degrees(frame.utm_convergence_rad(site.lat_deg,
+                                                                   site.lon_deg)[0])
+    assert max(abs(c) for c in convergence.values()) > 2.0
+    assert min(abs(c) for c in convergence.values()) < 1.0
+    assert any(get_scenario(n).site.lat_deg < 0 for n in SCENARIOS)
+    assert any(get_scenario(n).junction.left_hand for n in SCENARIOS)
+    assert len({get_scenario(n).junction.arm_deg for n in SCENARIOS}) >= 7
