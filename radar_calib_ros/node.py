@@ -9,6 +9,7 @@ ros2/geometry2 jazzy). See CONTRACT.md for the topics, services and parameters.
 """
 from __future__ import annotations
 
+import gc
 import threading
 from typing import Any
 
@@ -338,6 +339,11 @@ def main(args: list[str] | None = None) -> int:
         rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
         rclpy.try_shutdown()
         return 2
+    # Everything imported so far (rclpy, numpy, scipy, pyproj: ~100,000 objects) lives as
+    # long as the process; freezing it keeps Python's full garbage collections, which stop
+    # every callback, short (bench/bench_node.py measured ~70 ms per full collection for
+    # such a heap). Objects are still freed by reference counting.
+    gc.freeze()
     executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
     executor.add_node(node)
     try:

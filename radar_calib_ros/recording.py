@@ -73,7 +73,10 @@ class RecordingBuilder:
         self._frame_positions: list[F64] = []
         self._frame_velocities: list[F64] = []
         self._fixes: list[tuple[int, float, float, float]] = []
-        self._odoms: list[OdomSample] = []
+        # Odometry as flat tuples of numbers, not OdomSample objects: such tuples are not
+        # tracked by Python's cyclic garbage collector, so a long buffer (90,000 samples in
+        # 30 minutes) does not make every full collection in the node pause longer.
+        self._odoms: list[tuple[float, ...]] = []
         self.counters: Counter[str] = Counter()
         # kept current on every append so that the node can check its memory bound per message
         self._nbytes = 0
@@ -117,7 +120,9 @@ class RecordingBuilder:
         if not all(math.isfinite(v) for v in values) or not 0.5 < q_norm < 1.5:
             self.counters['odometry_invalid'] += 1
             return False
-        self._odoms.append(odom)
+        self._odoms.append((int(odom.stamp_ns), *map(float, odom.position_m), *map(
+            float, odom.quaternion_xyzw), *map(float, odom.velocity_body_mps),
+            float(odom.yaw_rate_rps)))
         self._nbytes += _ODOM_OVERHEAD_BYTES
         return True
 
@@ -132,7 +137,7 @@ class RecordingBuilder:
         n_fix = len(self._fixes)
         self._fixes = [f for f in self._fixes if f[0] >= stamp_ns]
         n_odom = len(self._odoms)
-        self._odoms = [o for o in self._odoms if o.stamp_ns >= stamp_ns]
+        self._odoms = [o for o in self._odoms if o[0] >= stamp_ns]
         self._nbytes = self._count_nbytes()
         return dropped + n_fix - len(self._fixes) + n_odom - len(self._odoms)
 
@@ -151,7 +156,7 @@ class RecordingBuilder:
     def stamp_range_ns(self) -> tuple[int, int] | None:
         """Earliest and latest stamp of any buffered sample."""
         stamps = self._frame_stamps + [f[0] for f in self._fixes] + [
-            o.stamp_ns for o in self._odoms]
+            int(o[0]) for o in self._odoms]
         return (min(stamps), max(stamps)) if stamps else None
 
     def nbytes(self) -> int:
@@ -193,7 +198,7 @@ class RecordingBuilder:
         items: list[tuple[int, int, int]] = []
         items.extend((s, 0, i) for i, s in enumerate(self._frame_stamps))
         items.extend((f[0], 1, i) for i, f in enumerate(self._fixes))
-        items.extend((o.stamp_ns, 2, i) for i, o in enumerate(self._odoms))
+        items.extend((int(o[0]), 2, i) for i, o in enumerate(self._odoms))
         items.sort()
         for stamp, kind, i in items:
             if kind == 0:
@@ -202,7 +207,7 @@ class RecordingBuilder:
                 _, lat, lon, alt = self._fixes[i]
                 yield FixSample(stamp, lat, lon, alt, 0)
             else:
-                yield self._odoms[i]
+                yield _odom_sample(self._odoms[i])
 
     # building ----------------------------------------------------------------------------
     def build(self) -> Recording:
@@ -235,7 +240,7 @@ class RecordingBuilder:
 
     def _build_vehicle(self) -> tuple[LocalFrame, VehicleTrack]:
         cfg = self._config
-        odoms = sorted(self._odoms, key=lambda o: o.stamp_ns)
+        odoms = [_odom_sample(o) for o in sorted(self._odoms, key=lambda o: o[0])]
         if self._fixes:
             fixes = np.array(sorted(self._fixes), dtype=np.float64)
             stamps = np.array(sorted(f[0] for f in self._fixes), np.int64)
@@ -286,6 +291,13 @@ class RecordingBuilder:
         vehicle = VehicleTrack(stamps, positions, np.asarray(yaw, float), velocities,
                                np.asarray(yaw_rate, float))
         return frame, vehicle
+
+
+def _odom_sample(values: tuple[float, ...]) -> OdomSample:
+    """OdomSample of a stored odometry tuple (stamp, position, quaternion, velocity, rate)."""
+    v = values
+    return OdomSample(int(v[0]), (v[1], v[2], v[3]), (v[4], v[5], v[6], v[7]),
+                      (v[8], v[9], v[10]), v[11])
 
 
 def interpolate_poses(vehicle: VehicleTrack, stamps_ns: I64, max_gap_s: float) -> PoseSamples:
