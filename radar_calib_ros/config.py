@@ -167,9 +167,23 @@ class RefineConfig:
                                    lo=1e-3, hi=10.0)
     position_sigma_m: float = _p(0.5, 'target position scatter assumed in the fit [m]',
                                  lo=1e-3, hi=10.0)
-    profile_harmonics: int = _p(2, 'Fourier order of the reflection profile over aspect angle',
+    profile_harmonics: int = _p(4, 'Fourier order of the reflection profile over aspect angle',
                                 lo=0, hi=8)
     max_iterations: int = _p(5, 'gate / re-fit rounds of the final refinement', lo=1, hi=50)
+    range_sigma_m: float = _p(0.15, 'radar range noise (1 sigma) [m]', lo=1e-4, hi=10.0)
+    azimuth_sigma_deg: float = _p(0.3, 'radar azimuth noise (1 sigma) [deg]', lo=1e-4, hi=20.0)
+    elevation_sigma_deg: float = _p(1.5, 'radar elevation noise (1 sigma) [deg]', lo=1e-4,
+                                    hi=30.0)
+    reflection_height_sigma_m: float = _p(
+        0.1, 'uncertainty of the prior mean reflection height (hypotheses.reflection_height_m)'
+        ' [m]', lo=1e-3, hi=5.0)
+    cell_frames: float = _p(
+        3.0, 'frames of one (vehicle position, aspect) cell that count at full weight; more '
+        'frames share that weight (a queued car must not dominate)', lo=0.1, hi=1e6)
+    cell_size_m: float = _p(1.0, 'vehicle position bin of the information weighting [m]',
+                            lo=0.01, hi=100.0)
+    cell_aspect_deg: float = _p(10.0, 'aspect-angle bin of the information weighting [deg]',
+                                lo=0.1, hi=360.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

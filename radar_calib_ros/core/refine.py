@@ -1,0 +1,854 @@
+"""Stage 8 (beyond the paper): joint robust refinement of the six degrees of freedom, the
+radar/GNSS clock offset and the vehicle's reflection profile over every target the current
+calibration places on or near the calibration vehicle.
+
+The paper stops at decimetres (delta_op 0.26-0.39 m) because it fits cluster centres and
+then a polygon loss that is biased when most targets lie inside the footprint. Here every
+target counts, through two kinds of residuals:
+
+* Radial velocity. For a rigid car v_r = (v_ref + omega x r) . u, u the unit line of sight,
+  whatever point reflected. It depends on the rotation and the clock offset, not on the
+  radar's position (to first order) and not on where on the car the target lies: it pins
+  the yaw (and partly pitch and roll) and the clock offset free of any reflection model.
+  Wheels break rigidity (micro-Doppler), hence a robust loss.
+* Position. The target in the vehicle frame minus the reflection profile m(alpha), the mean
+  offset of the targets as a function of the aspect angle (``core/reflection.py``),
+  estimated jointly. Residuals are whitened per target by the radar's spherical noise
+  (range ~0.15 m, azimuth ~0.3 deg, elevation ~1.5 deg: the cross-range and vertical parts
+  grow with range) plus the scatter of the reflectors around their mean; the scatter is
+  re-estimated every gate round.
+
+Gauge and priors (the least we can defend):
+* Left-right symmetry of the car (m_x, m_z even, m_y odd in alpha) fixes the lateral
+  profile; the depth along the line of sight stays free and is resolved only by seeing an
+  aspect from several bearings. Its trade-off with the radar's position along the
+  boresight is reported, not hidden.
+* The mean reflection height cannot be told from the radar's altitude by the vehicle alone
+  (both shift every target's height equally). A stated prior fixes it:
+  ``hypotheses.reflection_height_m`` above the road with ``refine.reflection_height_sigma_m``;
+  the road is the vehicle's reference point minus ``vehicle.ref_height``. Multipath ghosts
+  below the road are part of the population whose mean that prior describes.
+* Weak bounds keep the profile on the car (coefficients within about a car length) and the
+  clock offset within ``sync.max_time_offset``; they only matter when the data say nothing.
+
+Information, not frame count: a car crawling in a queue gives hundreds of near-identical
+frames from one place and one aspect. Frames are binned by (vehicle position, aspect) and
+the frames of a bin share the weight of ``refine.cell_frames`` frames.
+
+The uncertainty comes from agreement across passes (``core/uncertainty.py``), never from the
+per-target fit or from r_i.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from threadpoolctl import threadpool_limits
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core import reflection, uncertainty
+from radar_calib_ros.core.vehicle import box_distance, box_limits
+from radar_calib_ros.errors import InsufficientDataError
+from radar_calib_ros.recording import Recording
+from radar_calib_ros.types import (
+    F64, I64, Extrinsics, HypothesisSelection, Refinement, TrackedTargets, VehicleTrack)
+
+_LOG = logging.getLogger(__name__)
+
+#: Robust loss scale in whitened units: soft-L1 is quadratic within about one sigma and
+#: linear beyond, so wheel micro-Doppler (several m/s) and stray targets of other cars keep a
+#: bounded influence while the Gaussian core keeps most of its efficiency.
+_LOSS_SCALE = 1.0
+#: Fewest targets a refinement is attempted with.
+_MIN_TARGETS = 30
+#: A track is taken as the calibration vehicle's when at least this fraction of its targets
+#: lie in the gate: tracks of other cars that only brush past the box are left out.
+_TRACK_FRACTION = 0.5
+
+
+# --- vehicle poses at float times -------------------------------------------------------
+
+@dataclass(frozen=True, slots=True)
+class _Poses:
+    """The vehicle track as float-time arrays for repeated interpolation at t + tau."""
+
+    t_s: F64
+    positions_m: F64
+    yaw_unwrapped: F64
+    velocities_mps: F64
+    yaw_rate_rps: F64
+    accelerations_mps2: F64
+    yaw_accelerations_rps2: F64
+    max_gap_s: float
+
+    @classmethod
+    def from_track(cls, vehicle: VehicleTrack, t0_ns: int, max_gap_s: float) -> _Poses:
+        t = (vehicle.stamps_ns - t0_ns) * 1e-9
+        vel = np.asarray(vehicle.velocities_mps, float)
+        # Acceleration only enters the Jacobian of the clock offset (dv_r/dtau): a central
+        # difference over +-0.25 s is ample.
+        acc = np.column_stack([_central_difference(t, vel[:, i], 0.25) for i in range(3)])
+        rate = np.asarray(vehicle.yaw_rate_rps, float)
+        return cls(t, np.asarray(vehicle.positions_m, float), np.unwrap(vehicle.yaw_rad),
+                   vel, rate, acc, _central_difference(t, rate, 0.25), max_gap_s)
+
+    def at(self, t_s: F64) -> tuple[F64, F64, F64, F64, F64]:
+        """Position (n, 3), yaw (n,), velocity (n, 3), yaw rate (n,), and the time
+        derivatives of velocity and yaw rate (n, 4: acceleration x, y, z, yaw
+        acceleration)."""
+        tv = self.t_s
+        pos = np.column_stack([np.interp(t_s, tv, self.positions_m[:, i]) for i in range(3)])
+        vel = np.column_stack([np.interp(t_s, tv, self.velocities_mps[:, i])
+                               for i in range(3)])
+        acc = np.column_stack([np.interp(t_s, tv, self.accelerations_mps2[:, i])
+                               for i in range(3)]
+                              + [np.interp(t_s, tv, self.yaw_accelerations_rps2)])
+        yaw = np.interp(t_s, tv, self.yaw_unwrapped)
+        rate = np.interp(t_s, tv, self.yaw_rate_rps)
+        return pos, yaw, vel, rate, acc
+
+    def valid(self, t_s: F64) -> np.ndarray:
+        """(n,) True inside the pose stream and away from gaps longer than max_gap_s."""
+        tv = self.t_s
+        upper = np.clip(np.searchsorted(tv, t_s, side='left'), 1, tv.size - 1)
+        gap = tv[upper] - tv[upper - 1]
+        return (t_s >= tv[0]) & (t_s <= tv[-1]) & (gap <= self.max_gap_s)
+
+
+def _central_difference(t: F64, x: F64, half_span_s: float) -> F64:
+    if t.size < 2:
+        return np.zeros_like(x)
+    lo = np.searchsorted(t, t - half_span_s, side='left')
+    hi = np.searchsorted(t, t + half_span_s, side='right') - 1
+    idx = np.arange(t.size)
+    lo, hi = np.minimum(lo, np.maximum(idx - 1, 0)), np.maximum(hi, np.minimum(idx + 1,
+                                                                              t.size - 1))
+    dt = t[hi] - t[lo]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        return np.where(dt > 0, (x[hi] - x[lo]) / np.where(dt > 0, dt, 1.0), 0.0)
+
+
+# --- the model --------------------------------------------------------------------------
+
+@dataclass(frozen=True, slots=True)
+class _Selected:
+    """The targets of one gate round and what stays fixed while fitting them."""
+
+    index: I64             # into recording.targets
+    sensor_m: F64          # (n, 3) sensor-frame positions
+    t_s: F64               # (n,) radar stamp + sync.time_offset, seconds since t0
+    v_mps: F64             # (n,) measured radial velocity (positive = moving away)
+    sqrt_weight: F64       # (n,) square root of the information weight
+    pass_id: I64           # (n,) 0..G-1
+    whiten: F64            # (n, 3, 3) inverse Cholesky factor of the position covariance
+    sigma_v: F64           # (n,) radial-velocity sigma [m/s]
+
+
+class _Model:
+    """Residuals and analytic Jacobian of the joint fit around a base estimate.
+
+    Parameters x = [w (3), dt (3), tau (1, if estimated), profile (3K + 2)]: R = exp([w]) R0
+    (left perturbation, world frame), t = t0 + dt, clock offset tau (absolute).
+    """
+
+    def __init__(self, data: _Selected, poses: _Poses, rotation0: F64, translation0: F64,
+                 tau_fixed: float | None, harmonics: int, velocity_sigma: float,
+                 prior_mean: F64, prior_sigma: F64, centre_x_m: float) -> None:
+        self.data = data
+        self.xc = centre_x_m
+        self.poses = poses
+        self.r0 = rotation0
+        self.t0 = translation0
+        self.tau_fixed = tau_fixed
+        self.k = harmonics
+        self.sv = velocity_sigma
+        self.i_prof = 6 if tau_fixed is not None else 7
+        self.n_par = self.i_prof + reflection.n_coefficients(harmonics)
+        self.prior_mean = prior_mean      # (n_par,) NaN = no prior
+        self.prior_sigma = prior_sigma
+
+    def unpack(self, x: F64) -> tuple[F64, F64, float, F64]:
+        rot = Rotation.from_rotvec(x[:3]).as_matrix() @ self.r0
+        tau = float(x[6]) if self.tau_fixed is None else self.tau_fixed
+        return rot, self.t0 + x[3:6], tau, x[self.i_prof:]
+
+    def geometry(self, x: F64) -> dict[str, F64]:
+        """Per-target quantities at x (shared by residuals, Jacobian and diagnostics)."""
+        rot, trans, tau, prof = self.unpack(x)
+        d = self.data
+        los = d.sensor_m @ rot.T
+        world = los + trans
+        pos, yaw, vel, rate, acc = self.poses.at(d.t_s + tau)
+        c, s = np.cos(yaw), np.sin(yaw)
+        # The aspect is that of the box centre, not of each target: it says which side of
+        # the car faces the radar, the same for every target of a frame. (The target's own
+        # line of sight would tie the aspect to where on the car the target lies and bias
+        # the profile at short range.)
+        centre_los = pos - trans
+        centre_los[:, 0] += self.xc * c
+        centre_los[:, 1] += self.xc * s
+        aspect = reflection.aspect_angles(centre_los, yaw)
+        basis, d_basis = reflection.profile_basis(aspect, self.k)
+        offset = basis @ prof
+        rz_offset = np.column_stack([c * offset[:, 0] - s * offset[:, 1],
+                                     s * offset[:, 0] + c * offset[:, 1], offset[:, 2]])
+        rel = world - pos
+        err = rel - rz_offset
+        point_velocity = vel + rate[:, None] * np.column_stack([-rel[:, 1], rel[:, 0],
+                                                                np.zeros(len(rel))])
+        rng = np.linalg.norm(los, axis=1)
+        unit = los / rng[:, None]
+        # The line of sight of the radial velocity: measured range and bearing, but the
+        # height of the target from the model (vehicle height plus the profile), not from
+        # the measured elevation. Elevation noise (1-2 deg) inside the nonlinear v_r model is
+        # an errors-in-variables problem: at short range, where v_r is sensitive to pitch, it
+        # biases the pitch by ~0.1 deg. Pitch and roll are left to the position residuals.
+        los_v = los.copy()
+        los_v[:, 2] = pos[:, 2] + offset[:, 2] - trans[2]
+        dist_v = np.linalg.norm(los_v, axis=1)
+        unit_v = los_v / dist_v[:, None]
+        v_pred = np.einsum('ij,ij->i', point_velocity, unit_v)
+        return {'los': los, 'world': world, 'pos': pos, 'yaw': yaw, 'vel': vel,
+                'rate': rate, 'acc': acc, 'aspect': aspect, 'basis': basis,
+                'd_basis': d_basis, 'offset': offset, 'rz_offset': rz_offset, 'rel': rel,
+                'err': err, 'point_velocity': point_velocity, 'range': rng, 'unit': unit,
+                'v_pred': v_pred, 'c': c, 's': s, 'centre_los': centre_los,
+                'unit_v': unit_v, 'dist_v': dist_v}
+
+    def residuals(self, x: F64, jac: bool) -> tuple[F64, F64 | None, F64, F64 | None]:
+        """Data residuals (3n position + n velocity, whitened and information-weighted)
+        and prior residuals, each with its Jacobian when asked."""
+        g = self.geometry(x)
+        d = self.data
+        sw = d.sqrt_weight
+        r_pos = np.einsum('nij,nj->ni', d.whiten, g['err']) * sw[:, None]
+        r_vel = (g['v_pred'] - d.v_mps) / d.sigma_v * sw
+        r_data = np.concatenate([r_pos.ravel(), r_vel])
+        has_prior = np.isfinite(self.prior_mean)
+        r_prior = ((x - np.nan_to_num(self.prior_mean)) / self.prior_sigma)[has_prior]
+        if not jac:
+            return r_data, None, r_prior, None
+        n, n_par, ip = len(sw), self.n_par, self.i_prof
+        los, unit, rate = g['los'], g['unit'], g['rate']
+        c, s = g['c'], g['s']
+        prof = x[ip:]
+        # d(offset rotated to world)/d(aspect)
+        dm = g['d_basis'] @ prof
+        rz_dm = np.column_stack([c * dm[:, 0] - s * dm[:, 1], s * dm[:, 0] + c * dm[:, 1],
+                                 dm[:, 2]])
+        cl = g['centre_los']
+        rho2 = np.maximum(cl[:, 0] ** 2 + cl[:, 1] ** 2, 1e-12)
+        de = np.zeros((n, 3, n_par))
+        # dx/dw = -[l]x (the centre's aspect does not depend on the rotation)
+        de[:, 0, 1], de[:, 0, 2] = los[:, 2], -los[:, 1]
+        de[:, 1, 0], de[:, 1, 2] = -los[:, 2], los[:, 0]
+        de[:, 2, 0], de[:, 2, 1] = los[:, 1], -los[:, 0]
+        # moving the radar by dt turns the centre's line of sight by (l_y, -l_x) . dt / rho^2
+        dalpha_dt = np.column_stack([cl[:, 1] / rho2, -cl[:, 0] / rho2, np.zeros(n)])
+        de[:, 0, 3] = de[:, 1, 4] = de[:, 2, 5] = 1.0
+        de[:, :, 3:6] -= rz_dm[:, :, None] * dalpha_dt[:, None, :]
+        if self.tau_fixed is None:
+            off = g['offset']
+            z_cross_m = np.column_stack([-off[:, 1], off[:, 0], np.zeros(n)])
+            rz_zm = np.column_stack([c * z_cross_m[:, 0] - s * z_cross_m[:, 1],
+                                     s * z_cross_m[:, 0] + c * z_cross_m[:, 1],
+                                     np.zeros(n)])
+            # the aspect turns by -yaw_rate * dtau as the vehicle turns, and by the
+            # centre's own motion across the line of sight
+            vc_x = g['vel'][:, 0] - rate * self.xc * s
+            vc_y = g['vel'][:, 1] + rate * self.xc * c
+            dalpha_dtau = (cl[:, 0] * vc_y - cl[:, 1] * vc_x) / rho2 - rate
+            de[:, :, 6] = (-g['vel'] - rate[:, None] * rz_zm
+                           - rz_dm * dalpha_dtau[:, None])
+        basis = g['basis']
+        de[:, 0, ip:] = -(c[:, None] * basis[:, 0, :] - s[:, None] * basis[:, 1, :])
+        de[:, 1, ip:] = -(s[:, None] * basis[:, 0, :] + c[:, None] * basis[:, 1, :])
+        de[:, 2, ip:] = -basis[:, 2, :]
+        j_pos = np.einsum('nij,njk->nik', d.whiten, de) * sw[:, None, None]
+        # v = V_pt . d / |d| with d = (l_x, l_y, P_z + m_z - t_z):
+        # dv = (V_pt - v u)/|d| . dd + u . dV_pt
+        uv, vp = g['unit_v'], g['point_velocity']
+        dd = np.zeros((n, 3, n_par))
+        dd[:, 0:2, 0:3] = de[:, 0:2, 0:3]
+        dmz = dm[:, 2]
+        dd[:, 2, 3:6] = dmz[:, None] * dalpha_dt
+        dd[:, 2, 5] -= 1.0
+        if self.tau_fixed is None:
+            dd[:, 2, 6] = g['vel'][:, 2] + dmz * dalpha_dtau
+        dd[:, 2, ip:] = basis[:, 2, :]
+        dvp = np.zeros((n, 3, n_par))
+        # V_pt = V + rate z x (x - P): only the horizontal lever arm matters
+        dvp[:, 0, 0:3] = -rate[:, None] * de[:, 1, 0:3]
+        dvp[:, 1, 0:3] = rate[:, None] * de[:, 0, 0:3]
+        dvp[:, 0, 4] = -rate
+        dvp[:, 1, 3] = rate
+        if self.tau_fixed is None:
+            vel = g['vel']
+            rel = g['rel']
+            yaw_acc = g['acc'][:, 3]
+            dvp[:, :, 6] = g['acc'][:, :3] + rate[:, None] * np.column_stack(
+                [vel[:, 1], -vel[:, 0], np.zeros(n)]) + yaw_acc[:, None] * np.column_stack(
+                [-rel[:, 1], rel[:, 0], np.zeros(n)])
+        proj = (vp - g['v_pred'][:, None] * uv) / g['dist_v'][:, None]
+        dv = np.einsum('ni,nip->np', proj, dd) + np.einsum('ni,nip->np', uv, dvp)
+        j_vel = dv / d.sigma_v[:, None] * sw[:, None]
+        j_data = np.concatenate([j_pos.reshape(3 * n, n_par), j_vel])
+        j_prior = np.diag(1.0 / self.prior_sigma)[has_prior]
+        return r_data, j_data, r_prior, j_prior
+
+
+def _robust(r: F64, n_targets: int) -> tuple[F64, float]:
+    """IRLS weight of every data row and the robust cost.
+
+    Soft-L1, rho(s) = 2 f^2 (sqrt(1 + s / f^2) - 1), on the squared Mahalanobis norm of each
+    target's whitened 3-D position residual (f^2 = 3 * scale^2) and on each velocity
+    residual (f = scale). One weight per target, not per whitened component: the whitening
+    mixes vertical and horizontal components in a range-dependent way, and a per-component
+    weight would turn the asymmetric horizontal spread of the reflectors into a
+    range-dependent vertical shift, i.e. a pitch bias.
+    """
+    f2_pos, f2_vel = 3.0 * _LOSS_SCALE ** 2, _LOSS_SCALE ** 2
+    s_pos = np.sum(r[:3 * n_targets].reshape(n_targets, 3) ** 2, axis=1)
+    s_vel = r[3 * n_targets:] ** 2
+    w_pos = 1.0 / np.sqrt(1.0 + s_pos / f2_pos)
+    w_vel = 1.0 / np.sqrt(1.0 + s_vel / f2_vel)
+    cost = float(np.sum(2.0 * f2_pos * (np.sqrt(1.0 + s_pos / f2_pos) - 1.0))
+                 + np.sum(2.0 * f2_vel * (np.sqrt(1.0 + s_vel / f2_vel) - 1.0)))
+    return np.concatenate([np.repeat(w_pos, 3), w_vel]), cost
+
+
+@dataclass(frozen=True, slots=True)
+class _Fit:
+    x: F64
+    cost: float
+    iterations: int
+    converged: bool
+
+
+def _solve(model: _Model, x0: F64, max_iter: int = 30) -> _Fit:
+    """Levenberg-Marquardt on the iteratively reweighted (soft-L1) problem.
+
+    A hand-written LM rather than scipy's least_squares because the covariance needs the
+    very same weighted Hessian split by pass, and the priors must stay quadratic (scipy
+    applies one loss to every residual).
+    """
+    x = x0.copy()
+    n = model.data.index.size
+    r, j, rp, jp = model.residuals(x, jac=True)
+    w, cost = _robust(r, n)
+    cost += float(rp @ rp)
+    lam = 1e-3
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        jw = j * w[:, None]
+        h = j.T @ jw + jp.T @ jp
+        grad = jw.T @ r + jp.T @ rp
+        diag = np.maximum(np.diag(h), 1e-12)
+        improved = False
+        for _ in range(10):
+            step = -np.linalg.solve(h + lam * np.diag(diag), grad)
+            x_new = x + step
+            r_new, _, rp_new, _ = model.residuals(x_new, jac=False)
+            cost_new = _robust(r_new, n)[1] + float(rp_new @ rp_new)
+            if cost_new <= cost:
+                improved = True
+                break
+            lam *= 8.0
+        if not improved:
+            converged = True
+            break
+        x, cost = x_new, cost_new
+        lam = max(lam / 4.0, 1e-9)
+        # Converged when the step is far below anything that matters: 1e-6 rad, 1e-5 m,
+        # 1e-6 s (profile coefficients 1e-5 m).
+        small = np.abs(step) < np.where(np.arange(x.size) < 3, 1e-6, 1e-5)
+        r, j, rp, jp = model.residuals(x, jac=True)
+        w = _robust(r, n)[0]
+        if small.all():
+            converged = True
+            break
+    return _Fit(x, cost, it, converged)
+
+
+# --- selecting targets, weights, passes ---------------------------------------------------
+
+def _target_times(recording: Recording, index: I64, sync_offset_s: float, t0_ns: int) -> F64:
+    stamps = recording.frame_stamps_ns[recording.targets.frame_index[index]]
+    return (stamps - t0_ns) * 1e-9 + sync_offset_s
+
+
+def _vehicle_frame(world: F64, pos: F64, yaw: F64) -> F64:
+    d = world - pos
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]])
+
+
+def _gate(est: Extrinsics, candidates: I64, track_ids: I64, accepted: np.ndarray,
+          times: F64, recording: Recording, poses: _Poses, config: CalibConfig) -> np.ndarray:
+    """Mask over ``candidates`` of the targets the estimate puts on or near the vehicle."""
+    sensor = recording.targets.positions_m[candidates]
+    t = times + est.time_offset_s
+    valid = poses.valid(t)
+    pos, yaw, _, _, _ = poses.at(t)
+    local = _vehicle_frame(est.apply(sensor), pos, yaw)
+    near = valid & (box_distance(local[:, :2], config.vehicle) <= config.refine.gate_m)
+    # Tracks of other cars brush the box now and then; the calibration vehicle's own tracks
+    # are mostly inside the gate. Noise targets (no track) are judged one by one.
+    has_track = track_ids >= 0
+    keep = near.copy()
+    if has_track.any():
+        tid = track_ids[has_track]
+        uniq, inv = np.unique(tid, return_inverse=True)
+        frac = (np.bincount(inv, near[has_track].astype(float), minlength=uniq.size)
+                / np.bincount(inv, minlength=uniq.size))
+        track_ok = (frac >= _TRACK_FRACTION) | np.isin(uniq, accepted)
+        keep[has_track] &= track_ok[inv]
+    return keep
+
+
+def _information_weights(frame_index: I64, pos: F64, aspect: F64, config: CalibConfig) -> F64:
+    """Weight per target: the frames of one (vehicle position, aspect) cell share the weight
+    of ``cell_frames`` frames, so a queued car counts as the few views it really gives."""
+    cfg = config.refine
+    ix = np.floor(pos[:, 0] / cfg.cell_size_m).astype(np.int64)
+    iy = np.floor(pos[:, 1] / cfg.cell_size_m).astype(np.int64)
+    ia = np.floor((np.degrees(aspect) % 360.0) / cfg.cell_aspect_deg).astype(np.int64)
+    cells = np.stack([ix, iy, ia], axis=1)
+    _, cell = np.unique(cells, axis=0, return_inverse=True)
+    cell = cell.ravel()
+    # distinct frames per cell
+    pairs = np.unique(np.stack([cell, frame_index], axis=1), axis=0)
+    frames_per_cell = np.bincount(pairs[:, 0], minlength=int(cell.max()) + 1)
+    return np.minimum(1.0, cfg.cell_frames / frames_per_cell[cell])
+
+
+def _passes(times: F64, gap_s: float) -> I64:
+    """Pass id per target (0..G-1): runs of targets without a gap longer than gap_s."""
+    order = np.argsort(times, kind='stable')
+    breaks = np.concatenate([[0], (np.diff(times[order]) > gap_s).astype(np.int64)])
+    ids = np.empty(times.size, np.int64)
+    ids[order] = np.cumsum(breaks)
+    return ids
+
+
+def _whitening(sensor: F64, rotation: F64, yaw: F64, scatter_sigma: F64,
+               config: CalibConfig) -> F64:
+    """(n, 3, 3) inverse Cholesky factors of each target's position covariance in the world:
+    the radar's spherical noise (range, azimuth, elevation) plus the reflectors' scatter
+    around their mean (diagonal in the vehicle frame)."""
+    cfg = config.refine
+    rng = np.linalg.norm(sensor, axis=1)
+    az = np.arctan2(sensor[:, 1], sensor[:, 0])
+    el = np.arcsin(np.clip(sensor[:, 2] / np.maximum(rng, 1e-9), -1.0, 1.0))
+    ca, sa, ce, se = np.cos(az), np.sin(az), np.cos(el), np.sin(el)
+    e_r = np.column_stack([ce * ca, ce * sa, se])
+    e_az = np.column_stack([-sa, ca, np.zeros_like(sa)])
+    e_el = np.column_stack([-se * ca, -se * sa, ce])
+    var_r = cfg.range_sigma_m ** 2
+    var_az = (rng * ce * math.radians(cfg.azimuth_sigma_deg)) ** 2
+    var_el = (rng * math.radians(cfg.elevation_sigma_deg)) ** 2
+    cov_s = (var_r * e_r[:, :, None] * e_r[:, None, :]
+             + var_az[:, None, None] * e_az[:, :, None] * e_az[:, None, :]
+             + var_el[:, None, None] * e_el[:, :, None] * e_el[:, None, :])
+    cov_w = np.einsum('ij,njk,lk->nil', rotation, cov_s, rotation)
+    c, s = np.cos(yaw), np.sin(yaw)
+    sx2, sy2, sz2 = np.asarray(scatter_sigma, float) ** 2
+    cov_w[:, 0, 0] += c * c * sx2 + s * s * sy2
+    cov_w[:, 1, 1] += s * s * sx2 + c * c * sy2
+    cov_w[:, 0, 1] += c * s * (sx2 - sy2)
+    cov_w[:, 1, 0] += c * s * (sx2 - sy2)
+    cov_w[:, 2, 2] += sz2
+    chol = np.linalg.cholesky(cov_w)
+    return np.linalg.inv(chol)
+
+
+# --- the clock offset's starting value --------------------------------------------------
+
+def _scan_time_offset(est: Extrinsics, candidates: I64, times: F64, recording: Recording,
+                      poses: _Poses, config: CalibConfig) -> float:
+    """Coarse start for the clock offset: the offset that puts the most moving targets near
+    the box (soft count). The fit itself refines it; the scan only keeps a large offset
+    (vehicle displaced by metres) from starving the gate."""
+    max_off = config.sync.max_time_offset
+    if max_off <= 0.0 or candidates.size == 0:
+        return est.time_offset_s
+    grid = np.arange(-max_off, max_off + 1e-9, 0.01)
+    world = est.apply(recording.targets.positions_m[candidates])
+    gate = config.refine.gate_m
+    scores = np.empty(grid.size)
+    for i, tau in enumerate(grid):   # a few dozen offsets, each vectorised over targets
+        t = times + tau
+        pos, yaw, _, _, _ = poses.at(t)
+        dist = box_distance(_vehicle_frame(world, pos, yaw)[:, :2], config.vehicle)
+        scores[i] = np.sum(np.clip(1.0 - dist / gate, 0.0, 1.0) * poses.valid(t))
+    best = float(grid[int(np.argmax(scores))])
+    # A flat score (no information) keeps the given offset.
+    if scores.max() <= 1.001 * scores[int(np.argmin(np.abs(grid - est.time_offset_s)))]:
+        return est.time_offset_s
+    return best
+
+
+# --- the stage --------------------------------------------------------------------------
+
+def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
+                      selection: HypothesisSelection, config: CalibConfig) -> Refinement:
+    """Final robust refinement of rotation, translation, clock offset and reflection profile.
+
+    Parameters
+    ----------
+    initial : Extrinsics
+        Estimate after the paper's stages (decimetres, about a degree off; clock offset
+        unknown within ``sync.max_time_offset``).
+    recording : Recording
+    tracked : TrackedTargets
+        Moving targets with track ids; seeds the selection (stationary targets never count).
+    selection : HypothesisSelection
+        Its accepted tracks are always admitted to the gate.
+    config : CalibConfig
+        Uses ``refine``, ``sync``, ``vehicle``, ``hypotheses.reflection_height_m``,
+        ``hypotheses.pass_gap_s`` and ``quality.max_boresight_sigma_m``.
+
+    Returns
+    -------
+    Refinement
+        ``extrinsics`` (clock offset on top of ``sync.time_offset``), the 7x7 covariance over
+        [rotation vector (world, left perturbation), translation, time offset] from a
+        jackknife over passes, the reflection profile (``core/reflection.py`` layout) and
+        diagnostics: sigmas, advice, coverage, per-pass summaries and residual arrays.
+
+    Raises
+    ------
+    InsufficientDataError
+        Fewer than a handful of targets near the vehicle.
+
+    References
+    ----------
+    method-paper.tex, Sec. "Result Refinement" (what this stage goes beyond).
+    """
+    # The products here are tall and skinny (tens of thousands of rows, ~20 columns):
+    # memory-bound, and multi-threaded BLAS only spins on a busy machine (measured 10x
+    # slower with 2 cores shared). One thread is as fast when idle and far faster when not.
+    with threadpool_limits(limits=1, user_api='blas'):
+        return _refine(initial, recording, tracked, selection, config)
+
+
+def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
+            selection: HypothesisSelection, config: CalibConfig) -> Refinement:
+    cfg = config.refine
+    t0_ns = int(recording.vehicle.stamps_ns[0])
+    poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap)
+    candidates = np.asarray(tracked.target_index, np.int64)
+    track_ids = np.asarray(tracked.track_id, np.int64)
+    accepted = np.asarray(selection.accepted_track_ids, np.int64)
+    times = _target_times(recording, candidates, config.sync.time_offset, t0_ns)
+    estimate_tau = bool(config.sync.estimate_time_offset) and config.sync.max_time_offset > 0
+    est = Extrinsics(np.asarray(initial.rotation, float), np.asarray(initial.translation_m,
+                                                                      float),
+                     float(initial.time_offset_s))
+    if estimate_tau:
+        tau0 = _scan_time_offset(est, candidates, times, recording, poses, config)
+        est = Extrinsics(est.rotation, est.translation_m, tau0)
+    harmonics = cfg.profile_harmonics
+    x_lo, x_hi, _, _ = box_limits(config.vehicle)
+    centre_x = 0.5 * (x_lo + x_hi)
+    prior_mean, prior_sigma = _priors(config, harmonics, estimate_tau, est.time_offset_s)
+    profile = np.nan_to_num(prior_mean[(7 if estimate_tau else 6):])
+    scatter = np.full(3, cfg.position_sigma_m)
+    previous: I64 | None = None
+    data: _Selected | None = None
+    model: _Model | None = None
+    fit: _Fit | None = None
+    rounds = 0
+    for rounds in range(1, cfg.max_iterations + 1):
+        keep = _gate(est, candidates, track_ids, accepted, times, recording, poses, config)
+        index = candidates[keep]
+        if index.size < _MIN_TARGETS:
+            raise InsufficientDataError(
+                'refine', f'only {index.size} targets within {cfg.gate_m} m of the vehicle '
+                f'box, need at least {_MIN_TARGETS}')
+        data = _select(index, times[keep], est, recording, poses, scatter, config)
+        model = _Model(data, poses, est.rotation, est.translation_m,
+                       None if estimate_tau else est.time_offset_s, harmonics,
+                       cfg.velocity_sigma_mps, prior_mean, prior_sigma, centre_x)
+        x0 = np.zeros(model.n_par)
+        if estimate_tau:
+            x0[6] = est.time_offset_s
+        x0[model.i_prof:] = profile
+        fit = _solve(model, x0)
+        rot, trans, tau, profile = model.unpack(fit.x)
+        moved = _change(est, rot, trans, tau)
+        est = Extrinsics(rot, trans, tau)
+        scatter = _scatter(model, fit.x, cfg.position_sigma_m, config)
+        same = previous is not None and np.array_equal(previous, index)
+        previous = index
+        _LOG.debug('refine round %d: %d targets, %d iterations, moved %s', rounds, index.size,
+                   fit.iterations, moved)
+        if same and moved[0] < 1e-4 and moved[1] < 1e-3 and moved[2] < 1e-4:
+            break
+    assert data is not None and model is not None and fit is not None
+    # Covariance at the final solution, re-based so w = 0 is the reported rotation.
+    model = _Model(data, poses, est.rotation, est.translation_m,
+                   None if estimate_tau else est.time_offset_s, harmonics,
+                   cfg.velocity_sigma_mps, prior_mean, prior_sigma, centre_x)
+    x_hat = np.zeros(model.n_par)
+    if estimate_tau:
+        x_hat[6] = est.time_offset_s
+    x_hat[model.i_prof:] = profile
+    r, j, _, jp = model.residuals(x_hat, jac=True)
+    assert j is not None and jp is not None
+    w = np.sqrt(_robust(r, data.index.size)[0])
+    row_pass = np.concatenate([np.repeat(data.pass_id, 3), data.pass_id])
+    pc = uncertainty.pass_jackknife_covariance(j * w[:, None], r * w, row_pass, jp.T @ jp)
+    cov7 = np.zeros((7, 7))
+    if estimate_tau:
+        cov7[:] = pc.covariance[:7, :7]
+    else:
+        cov7[:6, :6] = pc.covariance[:6, :6]
+    diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
+                               config, fit, rounds, scatter)
+    return Refinement(extrinsics=est, covariance=cov7, n_targets=int(data.index.size),
+                      n_passes=pc.n_passes, reflection_profile=np.asarray(profile, float),
+                      diagnostics=diagnostics)
+
+
+def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool,
+            tau0: float) -> tuple[F64, F64]:
+    """Prior means (NaN = none) and sigmas of all parameters (see the module docstring)."""
+    veh = config.vehicle
+    i_prof = 7 if estimate_tau else 6
+    n_par = i_prof + reflection.n_coefficients(harmonics)
+    mean = np.full(n_par, np.nan)
+    sigma = np.ones(n_par)
+    if estimate_tau:
+        mean[6], sigma[6] = 0.0, max(config.sync.max_time_offset, 1e-3)
+    x0, x1, _, _ = box_limits(veh)
+    idx = reflection.coefficient_index(harmonics)
+    prof_mean = np.zeros(reflection.n_coefficients(harmonics))
+    prof_sigma = np.full(prof_mean.size, 0.5 * veh.length)
+    prof_mean[idx['a0']] = 0.5 * (x0 + x1)
+    prof_mean[idx['c0']] = config.hypotheses.reflection_height_m - veh.ref_height
+    prof_sigma[idx['c0']] = config.refine.reflection_height_sigma_m
+    prof_sigma[idx['c0'] + 1:] = 0.5 * veh.height
+    mean[i_prof:], sigma[i_prof:] = prof_mean, prof_sigma
+    del tau0
+    return mean, sigma
+
+
+def _debiased_positions(sensor: F64, config: CalibConfig) -> F64:
+    """Sensor-frame target positions with the bias of angular noise removed.
+
+    The radar measures range, azimuth and elevation; noise n ~ N(0, s^2) on an angle
+    shrinks the Cartesian position on average: E[cos(e + n)] = cos(e) exp(-s^2 / 2), the
+    same for sin. With 1.5 deg of elevation noise that is 3.4e-4 of the range, 3 cm at
+    100 m, a scale error that moves the radar along its boresight. Dividing by the expected
+    shrink makes the positions unbiased.
+    """
+    cfg = config.refine
+    s_el2 = math.radians(cfg.elevation_sigma_deg) ** 2
+    s_az2 = math.radians(cfg.azimuth_sigma_deg) ** 2
+    scale = np.array([math.exp(0.5 * (s_el2 + s_az2)), math.exp(0.5 * (s_el2 + s_az2)),
+                      math.exp(0.5 * s_el2)])
+    return sensor * scale
+
+
+def _select(index: I64, times: F64, est: Extrinsics, recording: Recording, poses: _Poses,
+            scatter: F64, config: CalibConfig) -> _Selected:
+    sensor = _debiased_positions(recording.targets.positions_m[index], config)
+    t = times + est.time_offset_s
+    pos, yaw, vel, _, _ = poses.at(t)
+    x_lo, x_hi, _, _ = box_limits(config.vehicle)
+    centre = pos - est.translation_m
+    centre[:, 0] += 0.5 * (x_lo + x_hi) * np.cos(yaw)
+    centre[:, 1] += 0.5 * (x_lo + x_hi) * np.sin(yaw)
+    aspect = reflection.aspect_angles(centre, yaw)
+    frame_index = recording.targets.frame_index[index]
+    weight = _information_weights(frame_index, pos, aspect, config)
+    pass_id = _passes(times, config.hypotheses.pass_gap_s)
+    whiten = _whitening(sensor, est.rotation, yaw, scatter, config)
+    # The v_r line of sight takes the target's height from the model; the reflectors'
+    # height scatter then tilts it by dz/|d|: add that to the v_r noise.
+    los = sensor @ est.rotation.T
+    los[:, 2] = (pos[:, 2] + config.hypotheses.reflection_height_m - config.vehicle.ref_height
+                 - est.translation_m[2])
+    dist = np.linalg.norm(los, axis=1)
+    unit = los / dist[:, None]
+    v_along = np.einsum('ij,ij->i', vel, unit)
+    dv_dh = (vel[:, 2] - v_along * unit[:, 2]) / dist
+    sigma_v = np.sqrt(config.refine.velocity_sigma_mps ** 2 + (dv_dh * scatter[2]) ** 2)
+    return _Selected(index, sensor, times, recording.targets.radial_velocity_mps[index],
+                     np.sqrt(weight), pass_id, whiten, sigma_v)
+
+
+def _scatter(model: _Model, x: F64, floor_m: float, config: CalibConfig) -> F64:
+    """Spread of the reflectors around the profile in the vehicle frame (x, y, z) for the
+    next round's whitening: the robust spread (1.4826 MAD) of the position residuals minus
+    the typical radar noise along that axis (range/azimuth horizontally, elevation
+    vertically), floored."""
+    g = model.geometry(x)
+    c, s = g['c'], g['s']
+    e = g['err']
+    local = np.column_stack([c * e[:, 0] + s * e[:, 1], -s * e[:, 0] + c * e[:, 1], e[:, 2]])
+    mad = 1.4826 * np.median(np.abs(local - np.median(local, axis=0)), axis=0)
+    rng = g['range']
+    cfg = config.refine
+    noise_h = np.median(0.5 * (cfg.range_sigma_m ** 2
+                               + (rng * math.radians(cfg.azimuth_sigma_deg)) ** 2))
+    noise_v = np.median((rng * math.radians(cfg.elevation_sigma_deg)) ** 2)
+    var = mad ** 2 - np.array([noise_h, noise_h, noise_v])
+    return np.sqrt(np.maximum(var, (0.2 * floor_m) ** 2))
+
+
+def _change(est: Extrinsics, rot: F64, trans: F64, tau: float) -> tuple[float, float, float]:
+    """(rotation angle [rad], translation [m], clock offset [s]) between two estimates."""
+    angle = float(np.linalg.norm(Rotation.from_matrix(rot @ est.rotation.T).as_rotvec()))
+    return angle, float(np.linalg.norm(trans - est.translation_m)), abs(tau
+                                                                        - est.time_offset_s)
+
+
+# --- diagnostics --------------------------------------------------------------------------
+
+def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
+                 pc: uncertainty.PassCovariance, cov7: F64, est: Extrinsics,
+                 recording: Recording, poses: _Poses, config: CalibConfig, fit: _Fit,
+                 rounds: int, scatter: F64) -> dict[str, Any]:
+    g = model.geometry(x)
+    n = data.index.size
+    los, unit, err = g['los'], g['unit'], g['err']
+    rng = g['range']
+    # Residual components for the report: along the line of sight, across it (horizontal)
+    # and vertical; azimuth is in the sensor frame.
+    horiz = np.column_stack([-unit[:, 1], unit[:, 0], np.zeros(n)])
+    horiz /= np.maximum(np.linalg.norm(horiz, axis=1), 1e-12)[:, None]
+    along_los = np.einsum('ij,ij->i', err, unit)
+    across_los = np.einsum('ij,ij->i', err, horiz)
+    vel_res = g['v_pred'] - data.v_mps
+    azimuth = np.arctan2(data.sensor_m[:, 1], data.sensor_m[:, 0])
+    weight = data.sqrt_weight ** 2
+    sig = uncertainty.sigma_summary(cov7, est.rotation)
+    # Bearing of each target relative to the boresight's ground projection.
+    bore = math.atan2(est.rotation[1, 0], est.rotation[0, 0])
+    bearing = np.arctan2(los[:, 1], los[:, 0]) - bore
+    bearing = (bearing + np.pi) % (2 * np.pi) - np.pi
+    coverage = uncertainty.view_coverage(g['aspect'], bearing, weight)
+    candidates = _drive_candidates(recording, poses, est, g, data, coverage, bore)
+    advice = uncertainty.drive_advice(sig['sigma_along_boresight_m'],
+                                      config.quality.max_boresight_sigma_m, coverage,
+                                      candidates, bore)
+    passes = []
+    i_t = slice(3, 6)
+    for p in range(pc.n_passes):
+        m = data.pass_id == p
+        if not m.any():
+            continue
+        vel = g['vel'][m]
+        heading = math.atan2(float(np.sum(vel[:, 1])), float(np.sum(vel[:, 0])))
+        passes.append({
+            'pass': p,
+            'start_s': float(data.t_s[m].min()), 'end_s': float(data.t_s[m].max()),
+            'n_targets': int(m.sum()), 'weight': float(weight[m].sum()),
+            'heading_compass': uncertainty.compass_name(heading),
+            'heading_deg': float(np.degrees(heading)),
+            'median_range_m': float(np.median(rng[m])),
+            'bearing_deg': [float(np.degrees(bearing[m].min())),
+                            float(np.degrees(bearing[m].max()))],
+            'median_abs_along_los_m': float(np.median(np.abs(along_los[m]))),
+            'median_along_los_m': float(np.median(along_los[m])),
+            'median_across_los_m': float(np.median(across_los[m])),
+            'median_vertical_m': float(np.median(err[m, 2])),
+            'median_velocity_residual_mps': float(np.median(vel_res[m])),
+            'influence_translation_m': [float(v) for v in pc.influences[p, i_t]],
+            'influence_rotation_deg': [float(v) for v in np.degrees(pc.influences[p, :3])],
+        })
+    local = _vehicle_frame(g['world'], g['pos'], g['yaw'])
+    return {
+        **sig,
+        'advice': advice,
+        'passes': passes,
+        'n_passes': pc.n_passes,
+        'jackknife_t_scale': pc.t_scale,
+        'rounds': rounds,
+        'iterations': fit.iterations,
+        'converged': fit.converged,
+        'time_offset_s': est.time_offset_s,
+        'scatter_sigma_m': [float(v) for v in scatter],
+        'profile_harmonics': config.refine.profile_harmonics,
+        'coverage': {'aspect_edges_deg': coverage.aspect_edges_deg,
+                     'bearing_edges_deg': coverage.bearing_edges_deg,
+                     'weights': coverage.weights,
+                     'bearing_spread_deg': coverage.bearing_spread_deg},
+        # Arrays for the report's figures (one entry per used target).
+        'residuals': {
+            'target_index': data.index, 'pass_id': data.pass_id, 'weight': weight,
+            'range_m': rng, 'azimuth_rad': azimuth, 'aspect_rad': g['aspect'],
+            'bearing_rad': bearing, 'along_los_m': along_los, 'across_los_m': across_los,
+            'vertical_m': err[:, 2], 'velocity_mps': vel_res,
+            'offset_vehicle_m': local,
+        },
+        'robust_weight_mean': float(np.mean(_robust(r, n)[0])),
+    }
+
+
+def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
+                      g: dict[str, F64], data: _Selected, coverage: uncertainty.ViewCoverage,
+                      bore: float) -> list[uncertainty.DriveCandidate]:
+    """Drives through the view ranked by the (aspect, bearing) diversity they would add.
+
+    Candidates are the vehicle's own recorded positions inside the part of the view where it
+    was seen (range and bearing span of the used targets): roads it can drive. Each is tried
+    in both directions; an (aspect bin, bearing) pair scores by its angular distance to the
+    bearings already seen at that aspect (saturating at 30 deg).
+    """
+    rng = g['range']
+    bearing = np.arctan2(g['los'][:, 1], g['los'][:, 0]) - bore
+    bearing = (bearing + np.pi) % (2 * np.pi) - np.pi
+    r_max = float(np.percentile(rng, 98))
+    b_lo, b_hi = float(np.percentile(bearing, 1)), float(np.percentile(bearing, 99))
+    pts = recording.vehicle.positions_m
+    yaw = recording.vehicle.yaw_rad
+    rel = pts[:, :2] - est.translation_m[:2]
+    p_rng = np.hypot(rel[:, 0], rel[:, 1])
+    p_bear = (np.arctan2(rel[:, 1], rel[:, 0]) - bore + np.pi) % (2 * np.pi) - np.pi
+    inside = (p_rng <= r_max) & (p_rng >= 5.0) & (p_bear >= b_lo - 0.1) & (p_bear <= b_hi + 0.1)
+    if not inside.any():
+        return []
+    # thin to about one sample per 5 m of road per direction
+    key = np.stack([np.floor(pts[inside, 0] / 5.0), np.floor(pts[inside, 1] / 5.0),
+                    np.floor(((yaw[inside] + np.pi) % (2 * np.pi)) / (np.pi / 4))], axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    sel = np.flatnonzero(inside)[first]
+    a_edges = np.radians(coverage.aspect_edges_deg)
+    seen_aspect = g['aspect']
+    out: list[uncertainty.DriveCandidate] = []
+    for flip, driven in ((0.0, True), (np.pi, False)):
+        heading = yaw[sel] + flip
+        los_dir = np.arctan2(rel[sel, 1], rel[sel, 0])
+        aspect = (los_dir + np.pi - heading + np.pi) % (2 * np.pi) - np.pi
+        a_bin = np.searchsorted(a_edges, (aspect - a_edges[0]) % (2 * np.pi) + a_edges[0],
+                                side='right') - 1
+        s_bin = np.searchsorted(a_edges, (seen_aspect - a_edges[0]) % (2 * np.pi)
+                                + a_edges[0], side='right') - 1
+        # distance to the nearest bearing already seen at the same aspect bin (vectorised
+        # over candidates x used targets, thinned to at most 2000 targets)
+        step = max(1, bearing.size // 2000)
+        sb, ss = bearing[::step], s_bin[::step]
+        same = a_bin[:, None] == ss[None, :]
+        dist = np.abs((p_bear[sel][:, None] - sb[None, :] + np.pi) % (2 * np.pi) - np.pi)
+        dist = np.where(same, dist, np.inf).min(axis=1)
+        gain = np.where(np.isfinite(dist), np.minimum(dist / np.radians(30.0), 1.0), 0.0)
+        for i in np.argsort(-gain)[:3]:
+            out.append(uncertainty.DriveCandidate(float(heading[i]), float(p_rng[sel][i]),
+                                                  float(p_bear[sel][i]), float(gain[i]),
+                                                  driven))
+    out.sort(key=lambda c: -c.gain)
+    # one suggestion per direction of travel
+    unique: list[uncertainty.DriveCandidate] = []
+    for cand in out:
+        if all(abs((cand.heading_rad - u.heading_rad + np.pi) % (2 * np.pi) - np.pi) > 0.5
+               for u in unique):
+            unique.append(cand)
+    return unique

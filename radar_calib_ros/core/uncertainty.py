@@ -1,0 +1,267 @@
+"""Calibrated uncertainty of the final refinement, and advice on the drive that would shrink it.
+
+Why not the textbook covariance: the targets of one pass are strongly correlated (the same
+car, the same reflectors, the same GNSS error, the same stretch of aspect angles), so the
+inverse Hessian of a per-target least-squares fit shrinks like 1/n_targets and claims
+millimetres where the truth is off by centimetres. And r_i says nothing about the error: a
+wrong calibration can score a higher r_i. What does carry the error is the disagreement
+between passes, so the covariance here is a jackknife over passes (the clustered, leverage-
+corrected cousin of the sandwich estimator, "CR3"): for each pass p the refit without it is
+approximated by one Gauss-Newton step from the full solution, delta_p = (H - H_p)^-1 g_p,
+which costs one small solve per pass instead of a refit. Removing the only pass that sees
+an aspect from a second bearing makes H - H_p nearly singular and delta_p large: the
+estimate then reports the large uncertainty it really has. With G passes the jackknife
+variance has about G - 1 degrees of freedom, so the reported 1-sigma is scaled by
+t_{G-1}(97.7 %) / 2 so that "2 sigma" keeps its ~95 % meaning with few passes. Priors (the
+mean reflection height, the weak bounds on the profile and the clock offset) are the same in
+every jackknife replicate, so their own contribution H^-1 P H^-1 is added explicitly: the
+vertical uncertainty can never be smaller than what the height prior leaves open.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from radar_calib_ros.types import F64, I64
+
+# 2-sided 2-sigma coverage of a normal variable: the quantile a t-interval must match.
+_TWO_SIGMA_QUANTILE = float(stats.norm.cdf(2.0))
+
+
+@dataclass(frozen=True, slots=True)
+class PassCovariance:
+    """Covariance of the parameters from agreement across passes.
+
+    covariance : (p, p) reported covariance (jackknife, t-scaled, plus priors);
+    influences : (G, p) one-step change of the estimate when each pass is left out;
+    n_passes : G; t_scale : the factor applied to the jackknife standard deviations.
+    """
+
+    covariance: F64
+    influences: F64
+    n_passes: int
+    t_scale: float
+
+
+def pass_jackknife_covariance(jacobian: F64, residuals: F64, pass_id: I64,
+                              prior_hessian: F64) -> PassCovariance:
+    """Jackknife-over-passes covariance of an M-estimate at its solution.
+
+    Parameters
+    ----------
+    jacobian : ndarray of shape (m, p)
+        Data rows of the Jacobian, whitened and multiplied by the square root of the robust
+        (IRLS) weight and of the information weight of each row.
+    residuals : ndarray of shape (m,)
+        The matching residuals, scaled the same way.
+    pass_id : ndarray of shape (m,), int
+        Pass of each row, 0..G-1.
+    prior_hessian : ndarray of shape (p, p)
+        J_prior^T J_prior of the whitened prior residuals (same in every replicate).
+
+    Returns
+    -------
+    PassCovariance
+    """
+    n_par = jacobian.shape[1]
+    passes, inverse = np.unique(pass_id, return_inverse=True)
+    n_passes = int(passes.size)
+    # Per-pass Hessians and gradients: rows sorted by pass, one product per pass (a loop
+    # over a handful of passes, never over rows).
+    order = np.argsort(inverse, kind='stable')
+    bounds = np.searchsorted(inverse[order], np.arange(n_passes + 1))
+    h_pass = np.zeros((n_passes, n_par, n_par))
+    g_pass = np.zeros((n_passes, n_par))
+    for g in range(n_passes):
+        rows = order[bounds[g]:bounds[g + 1]]
+        j_g = jacobian[rows]
+        h_pass[g] = j_g.T @ j_g
+        g_pass[g] = j_g.T @ residuals[rows]
+    hessian = h_pass.sum(axis=0) + prior_hessian
+    h_inv = _inverse(hessian)
+    # The full solution balances data and prior gradients; without pass p the rest of the
+    # gradient is -g_p, hence the step (H - H_p)^-1 g_p.
+    influences = np.stack([_inverse(hessian - h_pass[g]) @ g_pass[g] for g in range(n_passes)]
+                          ) if n_passes else np.zeros((0, n_par))
+    if n_passes >= 2:
+        centred = influences - influences.mean(axis=0)
+        jack = (n_passes - 1) / n_passes * centred.T @ centred
+        t_scale = float(stats.t.ppf(_TWO_SIGMA_QUANTILE, n_passes - 1) / 2.0)
+    else:
+        # One pass: no agreement to measure. Fall back to the naive covariance inflated by
+        # the number of targets a pass is worth (every target correlated): honest, large.
+        jack = h_inv * float(jacobian.shape[0])
+        t_scale = 1.0
+    covariance = t_scale ** 2 * jack + h_inv @ prior_hessian @ h_inv
+    covariance = 0.5 * (covariance + covariance.T)
+    return PassCovariance(covariance, influences, n_passes, t_scale)
+
+
+def _inverse(matrix: F64) -> F64:
+    """Inverse of a symmetric positive (semi)definite matrix; pseudo-inverse if singular."""
+    try:
+        return np.linalg.inv(matrix)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(matrix, hermitian=True)
+
+
+# --- figures of the covariance ----------------------------------------------------------
+
+def sigma_summary(covariance: F64, rotation: F64) -> dict[str, float]:
+    """1-sigma figures of a 7x7 [rotation vector, translation, time offset] covariance.
+
+    ``along``/``across`` are horizontal, along and across the boresight's ground
+    projection; rotation sigmas are about the world axes (z = yaw) in degrees.
+    """
+    c_t = covariance[3:6, 3:6]
+    boresight = np.asarray(rotation)[:2, 0]
+    norm = float(np.hypot(*boresight))
+    along = boresight / norm if norm > 1e-9 else np.array([1.0, 0.0])
+    across = np.array([-along[1], along[0]])
+    c_h = c_t[:2, :2]
+    rot_deg = np.degrees(np.sqrt(np.clip(np.diag(covariance[:3, :3]), 0.0, None)))
+    return {
+        'sigma_translation_m': math.sqrt(max(float(np.trace(c_t)), 0.0)),
+        'sigma_horizontal_m': math.sqrt(max(float(np.trace(c_h)), 0.0)),
+        'sigma_along_boresight_m': math.sqrt(max(float(along @ c_h @ along), 0.0)),
+        'sigma_across_boresight_m': math.sqrt(max(float(across @ c_h @ across), 0.0)),
+        'sigma_vertical_m': math.sqrt(max(float(c_t[2, 2]), 0.0)),
+        'sigma_rotation_deg': math.degrees(math.sqrt(max(float(np.trace(covariance[:3, :3])),
+                                                         0.0))),
+        'sigma_roll_pitch_yaw_world_deg': [float(v) for v in rot_deg],
+        'sigma_time_offset_s': math.sqrt(max(float(covariance[6, 6]), 0.0)),
+    }
+
+
+# --- advice ------------------------------------------------------------------------------
+
+_COMPASS = ('north', 'north-east', 'east', 'south-east', 'south', 'south-west', 'west',
+            'north-west')
+_SIDES = {0: 'front', 1: 'front-left', 2: 'left side', 3: 'rear-left', 4: 'rear',
+          5: 'rear-right', 6: 'right side', 7: 'front-right'}
+
+
+def compass_name(enu_angle_rad: float) -> str:
+    """'north', 'south-east', ... of an ENU direction (counter-clockwise from east)."""
+    compass_deg = (90.0 - math.degrees(enu_angle_rad)) % 360.0
+    return _COMPASS[int(((compass_deg + 22.5) % 360.0) // 45.0)]
+
+
+def aspect_name(aspect_rad: float) -> str:
+    """'front', 'left side', ... of an aspect angle (0 = front, +pi/2 = left)."""
+    return _SIDES[int(((math.degrees(aspect_rad) + 22.5) % 360.0) // 45.0)]
+
+
+@dataclass(frozen=True, slots=True)
+class ViewCoverage:
+    """Where the vehicle was seen from: weighted histogram over (aspect, bearing).
+
+    aspect_edges_deg : (A + 1,), bearing_edges_deg : (B + 1,) bearing relative to the
+    boresight (positive = left of it); weights : (A, B) information weight per cell;
+    bearing_spread_deg : (A,) weighted circular std of the bearing per aspect bin (NaN
+    where the aspect was not seen). A depth along the line of sight is separable from the
+    radar's position only where one aspect is seen from different bearings.
+    """
+
+    aspect_edges_deg: F64
+    bearing_edges_deg: F64
+    weights: F64
+    bearing_spread_deg: F64
+
+
+def view_coverage(aspect_rad: F64, bearing_rad: F64, weights: F64,
+                  aspect_bin_deg: float = 45.0, bearing_bin_deg: float = 10.0) -> ViewCoverage:
+    """Histogram of the (aspect, bearing) coverage of the used targets.
+
+    Parameters
+    ----------
+    aspect_rad : (n,) aspect angle of each target [rad];
+    bearing_rad : (n,) bearing of each target relative to the boresight [rad];
+    weights : (n,) information weight of each target.
+    """
+    a_deg = (np.degrees(aspect_rad) + aspect_bin_deg / 2.0) % 360.0 - aspect_bin_deg / 2.0
+    a_edges = np.arange(-aspect_bin_deg / 2.0, 360.0 - aspect_bin_deg / 2.0 + 1e-9,
+                        aspect_bin_deg)
+    b_deg = np.degrees(bearing_rad)
+    lim = max(90.0, float(np.ceil(np.abs(b_deg).max() / bearing_bin_deg) * bearing_bin_deg)
+              if b_deg.size else 90.0)
+    b_edges = np.arange(-lim, lim + 1e-9, bearing_bin_deg)
+    hist, _, _ = np.histogram2d(a_deg, b_deg, bins=[a_edges, b_edges], weights=weights)
+    a_bin = np.clip(np.searchsorted(a_edges, a_deg, side='right') - 1, 0, a_edges.size - 2)
+    w_sum = np.bincount(a_bin, weights, minlength=a_edges.size - 1)
+    c = np.bincount(a_bin, weights * np.cos(bearing_rad), minlength=a_edges.size - 1)
+    s = np.bincount(a_bin, weights * np.sin(bearing_rad), minlength=a_edges.size - 1)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        resultant = np.hypot(c, s) / w_sum
+        spread = np.degrees(np.sqrt(-2.0 * np.log(np.clip(resultant, 1e-12, 1.0))))
+    spread[w_sum <= 0] = np.nan
+    return ViewCoverage(a_edges, b_edges, hist, spread)
+
+
+@dataclass(frozen=True, slots=True)
+class DriveCandidate:
+    """A drive the vehicle could make through the view: a stretch of road it already used,
+    in one direction. heading_rad (ENU), range_m and bearing_rad (relative to the
+    boresight) of its middle; gain: how much new (aspect, bearing) diversity it adds."""
+
+    heading_rad: float
+    range_m: float
+    bearing_rad: float
+    gain: float
+    driven: bool
+
+
+def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverage,
+                 candidates: list[DriveCandidate], boresight_rad: float) -> list[str]:
+    """Plain sentences naming the drive that would shrink a large along-boresight sigma.
+
+    Parameters
+    ----------
+    sigma_along_m : 1-sigma of the translation along the boresight [m]
+    threshold_m : ``quality.max_boresight_sigma_m``
+    coverage : the (aspect, bearing) histogram of the used targets
+    candidates : drives through the view, best first (see ``core.refine``)
+    boresight_rad : ENU direction of the boresight's ground projection
+    """
+    if not sigma_along_m > threshold_m:
+        return []
+    seen = np.flatnonzero(coverage.weights.sum(axis=1) > 0.02 * max(coverage.weights.sum(),
+                                                                       1e-12))
+    centres = 0.5 * (coverage.aspect_edges_deg[:-1] + coverage.aspect_edges_deg[1:])
+    sides = sorted({aspect_name(math.radians(centres[i])) for i in seen},
+                   key=lambda n: list(_SIDES.values()).index(n))
+    spread = coverage.bearing_spread_deg[seen]
+    finite = spread[np.isfinite(spread)]
+    median_spread = float(np.median(finite)) if finite.size else 0.0
+    sentences = [
+        f'The position along the boresight is uncertain by {100 * sigma_along_m:.0f} cm '
+        f'(1 sigma, more than {100 * threshold_m:.0f} cm): the vehicle was seen only at '
+        f'its {_join(sides) or "no"} aspect(s), each from bearings spread by about '
+        f'{median_spread:.0f} deg, so the depth of its reflections trades off against the '
+        'radar\'s distance.']
+    useful = [c for c in candidates if c.gain > 0.0][:2]
+    for cand in useful:
+        side = 'left' if cand.bearing_rad > 0 else 'right'
+        what = ('the lane already driven, again' if cand.driven
+                else 'the opposite direction of a road already driven')
+        sentences.append(
+            f'Drive {compass_name(cand.heading_rad)}bound through the view about '
+            f'{cand.range_m:.0f} m from the radar, {abs(math.degrees(cand.bearing_rad)):.0f} '
+            f'deg {side} of its boresight ({what}): it shows the vehicle at aspects already '
+            'seen from a new bearing.')
+    across = boresight_rad + math.pi / 2.0
+    sentences.append(
+        f'Better still, cross the view (heading {compass_name(across)} or '
+        f'{compass_name(across + math.pi)}) or turn through it within about 20-40 m of the '
+        'radar, so the front and rear are seen from bearings far from the boresight; then '
+        'calibrate again.')
+    return sentences
+
+
+def _join(names: list[str]) -> str:
+    if len(names) <= 1:
+        return ''.join(names)
+    return ', '.join(names[:-1]) + ' and ' + names[-1]
