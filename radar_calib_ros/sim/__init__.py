@@ -97,7 +97,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
     seed : int, default=0
         Same seed, scenario, duration and model -> identical bag contents.
     duration_s : float, default=600.0
-        Length of the recording [s] (10 s to 2 h); the number of passes of the calibration
+        Length of the recording [s] (10 s to 1 h); the number of passes of the calibration
         vehicle grows with it (about one a minute, at least 4, at most 15).
     storage : {'mcap', 'sqlite3'}, default='mcap'
     scenario : str, default='baseline'
@@ -121,8 +121,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
     model_name = check_scatter_model(scatter_model)
     if storage not in _STORAGES:
         raise ConfigError(f'unknown bag storage {storage!r}; use mcap or sqlite3')
-    if not (10.0 <= float(duration_s) <= 7200.0):
-        raise ConfigError(f'duration {duration_s} s is outside [10, 7200] s')
+    if not (10.0 <= float(duration_s) <= 3600.0):
+        raise ConfigError(f'duration {duration_s} s is outside [10, 3600] s')
     if not isinstance(seed, int) or seed < 0:
         raise ConfigError(f'seed must be a non-negative integer, got {seed!r}')
     out = Path(out_dir)
@@ -193,15 +193,14 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
                'reads ground_truth*.')
     poses = vehicle_poses(log, scene.ground, spec.vehicle, times)
     write_targets(paths.targets, {
-        'frame_index': targets.frame.astype(np.int32),
-        'object_id': targets.object_id.astype(np.int32),
+        'frame_index': targets.frame,
+        'object_id': targets.object_id,
         'object_class': targets.object_class,
         'is_calibration_vehicle': targets.object_id == 0,
         'scatter_kind': targets.kind,
-        # float32 as in the bag: millimetre resolution, half the size
-        'position_true_sensor_m': targets.position_true_m.astype(np.float32),
-        'position_sensor_m': targets.position_m.astype(np.float32),
-        'radial_velocity_true_mps': targets.radial_velocity_true_mps.astype(np.float32),
+        'position_true_sensor_m': targets.position_true_m,
+        'position_sensor_m': targets.position_m,
+        'radial_velocity_true_mps': targets.radial_velocity_true_mps,
         'frame_stamp_ns': radar_stamps_ns,
         'frame_time_s': times,
         'vehicle_position_m': poses.position_m,
@@ -244,8 +243,9 @@ def _passes(log: TrafficLog, junction: Junction, times: np.ndarray,
             'movement': drive.movements[k], 'lane_in': int(lane_in), 'lane_out': int(lane_out),
             'heading_in_deg': _arm_heading(junction, entry, inbound=True),
             'heading_out_deg': _arm_heading(junction, exit_, inbound=False),
-            't_start_s': max(t_start, 0.0), 't_stop_line_s': t_stop,
-            't_end_s': min(t_end, end), 'stopped_s': stopped, 'n_targets': n_seen})
+            't_start_s': round(max(t_start, 0.0), 3), 't_stop_line_s': round(t_stop, 3),
+            't_end_s': round(min(t_end, end), 3), 'stopped_s': round(stopped, 1),
+            'n_targets': n_seen})
     return out
 
 
@@ -253,7 +253,7 @@ def _arm_heading(junction: Junction, arm: int, *, inbound: bool) -> float:
     """ENU heading of travel on an arm (local grid, deg, counter-clockwise from east, in
     [0, 360)): inbound traffic drives towards the centre, against the arm's direction."""
     angle = math.degrees(junction.arms[arm].angle_rad) + (180.0 if inbound else 0.0)
-    return angle % 360.0
+    return round(angle % 360.0, 6)
 
 
 def _truth(spec: Scenario, seed: int, model: str, duration: float, frame: LocalFrame,

@@ -89,7 +89,8 @@ class RadarTargets:
     radial_velocity_mps, rcs_dbsm : (n,) measured; object_id : (n,) (-1 clutter and false
     alarms); object_class, kind : (n,) codes (``traffic.CLASS_NAMES``,
     ``scatter.KIND_NAMES``); position_true_m : (n, 3) noise-free sensor-frame position of
-    the (apparent) reflection; radial_velocity_true_mps : (n,).
+    the (apparent) reflection; radial_velocity_true_mps : (n,). Stored compactly: int32
+    indices, int8 codes, float32 values (as the bag carries them).
     """
 
     frame: I64
@@ -189,8 +190,8 @@ def simulate_radar(log: TrafficLog, templates: ScatterTemplates, scene: StaticSc
     cat = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     return RadarTargets(
         frame=cat['frame'], position_m=cat['position_m'], radial_velocity_mps=cat['v_meas'],
-        rcs_dbsm=cat['rcs'], object_id=cat['obj'], object_class=cat['cls'].astype(np.int8),
-        kind=cat['kind'].astype(np.int8), position_true_m=cat['position_true_m'],
+        rcs_dbsm=cat['rcs'], object_id=cat['obj'], object_class=cat['cls'],
+        kind=cat['kind'], position_true_m=cat['position_true_m'],
         radial_velocity_true_mps=cat['v_true'])
 
 
@@ -312,10 +313,15 @@ def _observe_batch(log: TrafficLog, templates: ScatterTemplates, scene: StaticSc
     rcs_m = cat['rcs'] + rng.normal(0.0, 1.0, n)
     # radars list their targets in no useful order: shuffle within each frame
     order = np.lexsort((rng.random(n), cat['frame']))
-    return {'frame': cat['frame'][order] + frame0, 'position_m': p_m[order],
-            'v_meas': v_m[order], 'rcs': rcs_m[order], 'obj': cat['obj'][order],
-            'cls': cat['cls'][order], 'kind': cat['kind'][order],
-            'position_true_m': cat['p'][order], 'v_true': cat['v'][order]}
+    # compact types from here on (the bag carries float32): a 15-minute recording holds
+    # millions of targets
+    f32 = np.float32
+    return {'frame': (cat['frame'][order] + frame0).astype(np.int32),
+            'position_m': p_m[order].astype(f32), 'v_meas': v_m[order].astype(f32),
+            'rcs': rcs_m[order].astype(f32), 'obj': cat['obj'][order].astype(np.int32),
+            'cls': cat['cls'][order].astype(np.int8), 'kind': cat['kind'][order].astype(
+                np.int8), 'position_true_m': cat['p'][order].astype(f32),
+            'v_true': cat['v'][order].astype(f32)}
 
 
 def _occluded(c_frame: I64, c_point: F64, c_obj: I64, o_frame: I64, o_obj: I64, o_xy: F64,

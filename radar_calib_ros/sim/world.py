@@ -94,7 +94,7 @@ def build_scene(scenario: Scenario, junction: Junction, rng: np.random.Generator
             sgn = math.copysign(1.0, junction.kerb_offset(inbound))
             to_road = -sgn * n
             # kerb stones: weak, seen best square-on from the road
-            d = np.arange(arm.stop_m + 1.0, min(length, 180.0), 2.0 / density)
+            d = np.arange(arm.stop_m + 1.0, min(length, 180.0), 1.5 / density)
             xy = d[:, None] * u + junction.kerb_offset(inbound) * n
             xy += rng.normal(0.0, 0.03, xy.shape)
             pts.add(xy, 0.12, rng.normal(-15.0, 3.0, d.size), to_road, 1.0, -12.0)

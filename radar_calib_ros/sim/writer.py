@@ -51,9 +51,9 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
     store = msgs.get_typestore()
     n_frames = radar_stamps_ns.size
     bounds = np.searchsorted(targets.frame, np.arange(n_frames + 1))
-    positions = targets.position_m.astype(np.float32)
-    velocity = targets.radial_velocity_mps.astype(np.float32)
-    rcs = targets.rcs_dbsm.astype(np.float32)
+    positions = targets.position_m.astype(np.float32, copy=False)
+    velocity = targets.radial_velocity_mps.astype(np.float32, copy=False)
+    rcs = targets.rcs_dbsm.astype(np.float32, copy=False)
     # (receive time, topic rank, index), merged into one receive-ordered stream
     keys = [np.column_stack([radar_receive_ns, np.zeros(n_frames, np.int64),
                              np.arange(n_frames)]),
