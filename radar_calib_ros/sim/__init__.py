@@ -230,7 +230,7 @@ def _passes(log: TrafficLog, junction: Junction, times: np.ndarray,
     out = []
     for k, (entry, exit_, lane_in, lane_out) in enumerate(drive.passes):
         s_start, s_stop, s_end = drive.pass_s[k]
-        t_start, t_stop, t_end = (float(np.interp(x, s_series, t_series))
+        t_start, t_stop, t_end = (_first_time(x, s_series, t_series)
                                   for x in (s_start, s_stop, s_end))
         if t_stop < 0.0 or t_stop > end or s_series[-1] < s_stop:
             continue
@@ -247,6 +247,15 @@ def _passes(log: TrafficLog, junction: Junction, times: np.ndarray,
             't_end_s': round(min(t_end, end), 3), 'stopped_s': round(stopped, 1),
             'n_targets': n_seen})
     return out
+
+
+def _first_time(s_mark: float, s: np.ndarray, t: np.ndarray) -> float:
+    """When a non-decreasing arc length first reaches ``s_mark`` (linear between steps;
+    waiting at the mark does not move the answer)."""
+    i = int(np.clip(np.searchsorted(s, s_mark, side='left'), 1, s.size - 1))
+    ds = s[i] - s[i - 1]
+    frac = float(np.clip((s_mark - s[i - 1]) / ds, 0.0, 1.0)) if ds > 0 else 1.0
+    return float(t[i - 1] + frac * (t[i] - t[i - 1]))
 
 
 def _arm_heading(junction: Junction, arm: int, *, inbound: bool) -> float:

@@ -44,7 +44,7 @@ I64 = NDArray[np.int64]
 
 SCATTER_MODELS = ('skin', 'interior', 'mixed')
 #: The model the simulator uses unless told otherwise: the one whose metrics at the true
-#: calibration match the paper's Table I (test/sim/test_scatter_metrics.py).
+#: calibration match the paper's Table I (test/sim/test_sim_scatter.py).
 DEFAULT_SCATTER_MODEL = 'interior'
 
 KIND_NAMES = ('static', 'face', 'corner', 'wheel', 'wheel_house', 'underbody', 'engine',
