@@ -7,9 +7,11 @@ through ``LiveCalibrator`` exactly as the node's subscription callbacks do, then
 - prints the cost of handling one radar frame (``on_radar``: decoding the PointCloud2 and
   buffering it; mean, p50, p99, max) and of one fix / odometry message;
 - the same for synthetic 500-target frames (the issue's bound: well under 1 ms);
-- feeds the recording a second time shifted by its duration, so the buffer holds 30
-  minutes of data, and prints the buffer's memory (its own estimate, which the
-  ``buffer.max_memory_mb`` bound uses, and the growth of the process's resident memory);
+- feeds the recording into a fresh buffer twice, the second time shifted by its duration,
+  so that the buffer holds 30 minutes of data, and prints the buffer's memory: measured
+  (tracemalloc: what is still allocated once the messages are gone; numpy reports its
+  arrays to it) and the buffer's own estimate, which the ``buffer.max_memory_mb`` bound
+  uses;
 - calls ``calibrate()`` on the 15-minute buffer and prints the time from trigger to result.
 
 Deserialising the bag (rosbags) is not part of the node's cost (rclpy hands over messages)
@@ -27,6 +29,7 @@ import json
 import sys
 import tempfile
 import time
+import tracemalloc
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -75,6 +78,29 @@ def shift(msg: Any, offset_ns: int) -> Any:
     stamp = msgs.stamp_ns(msg.header) + offset_ns
     moved.header.stamp = type(msg.header.stamp)(sec=stamp // 10**9, nanosec=stamp % 10**9)
     return moved
+
+
+class GcPauses:
+    """Durations of Python's garbage collections by generation (gc.callbacks)."""
+
+    def __init__(self) -> None:
+        self.pauses: dict[int, list[float]] = {0: [], 1: [], 2: []}
+        self._start = 0.0
+        gc.callbacks.append(self)
+
+    def __call__(self, phase: str, info: dict[str, int]) -> None:
+        if phase == 'start':
+            self._start = time.perf_counter()
+        else:
+            self.pauses[info['generation']].append(time.perf_counter() - self._start)
+
+    def summary(self) -> dict[str, float]:
+        full = self.pauses[2]
+        return {'full_collections': len(full), 'full_max_ms': 1e3 * max(full, default=0.0),
+                'all_total_s': sum(sum(p) for p in self.pauses.values())}
+
+    def close(self) -> None:
+        gc.callbacks.remove(self)
 
 
 def feed(live: LiveCalibrator, bag: Path, offset_ns: int = 0) -> dict[str, list[float]]:
@@ -141,8 +167,11 @@ def main() -> int:
     live = LiveCalibrator(config, log=lambda severity, text: log_lines.append(text))
 
     gc.collect()
+    gc.freeze()  # as the node's main() does after start
     rss_before = rss_mib()
+    pauses = GcPauses()
     costs = feed(live, bag)
+    pauses.close()
     first = live.buffer_stats()
     report: dict[str, Any] = {
         'recording_s': first['span_s'],
@@ -151,6 +180,7 @@ def main() -> int:
         'radar_frame': stats_us(costs['on_radar']),
         'navsatfix': stats_us(costs['on_navsat']),
         'odometry': stats_us(costs['on_odometry']),
+        'gc_during_feed': pauses.summary(),
     }
     if not args.no_calibrate:
         start = time.perf_counter()
@@ -158,14 +188,24 @@ def main() -> int:
         report['trigger_to_result_s'] = time.perf_counter() - start
         report['calibration'] = outcome.message
 
+    del live
+    gc.collect()
+    # a fresh buffer of 30 minutes, traced: the recording, then again shifted by its span
     span_ns = int(round(first['span_s'] * 1e9)) + 66_666_667
+    tracemalloc.start()
+    live = LiveCalibrator(config, log=lambda severity, text: log_lines.append(text))
+    feed(live, bag)
     feed(live, bag, offset_ns=span_ns)
     gc.collect()
+    traced, _ = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
     full = live.buffer_stats()
     report['buffer_span_s'] = full['span_s']
+    report['buffer_traced_mib'] = traced / 2**20
     report['buffer_estimate_mib'] = full['memory_mib']
     report['rss_growth_mib'] = rss_mib() - rss_before
-    report['buffer_mib_per_30_min'] = full['memory_mib'] * 1800.0 / max(full['span_s'], 1.0)
+    del live
+    gc.collect()
 
     bench_live = LiveCalibrator(CalibConfig.from_mapping({'output.path': str(work / 'b.yaml')}),
                                 log=lambda severity, text: None)
@@ -178,9 +218,12 @@ def main() -> int:
         s = r[key]
         print(f"{key:>27}: mean {s['mean_us']:7.1f} us, p50 {s['p50_us']:7.1f} us, "
               f"p99 {s['p99_us']:7.1f} us, max {s['max_us']:8.1f} us  (n={s['n']})")
-    print(f"buffer of {r['buffer_span_s']:.0f} s: {r['buffer_estimate_mib']:.0f} MiB "
-          f"(estimate; {r['buffer_mib_per_30_min']:.0f} MiB per 30 min), process RSS grew "
-          f"{r['rss_growth_mib']:.0f} MiB")
+    print(f"buffer of {r['buffer_span_s']:.0f} s: {r['buffer_traced_mib']:.0f} MiB measured, "
+          f"{r['buffer_estimate_mib']:.0f} MiB by its own estimate (process RSS grew "
+          f"{r['rss_growth_mib']:.0f} MiB)")
+    g = r['gc_during_feed']
+    print(f"garbage collections while feeding: {g['full_collections']} full ones, longest "
+          f"{g['full_max_ms']:.0f} ms, {g['all_total_s']:.1f} s in all (the max above)")
     if 'trigger_to_result_s' in r:
         print(f"trigger to result on {r['recording_s']:.0f} s: {r['trigger_to_result_s']:.1f} s"
               f" -> {r['calibration']}")

@@ -192,7 +192,6 @@ class LiveCalibrator:
         # outputs
         self._transform: TransformOutput | None = None
         self._calibration: dict[str, Any] | None = None
-        self._quality: QualityReport | None = None
         self._source = ''
         self._failure: str | None = None
         self._file_problem: str | None = None
@@ -451,8 +450,7 @@ class LiveCalibrator:
             return TriggerOutcome(False, f'calibration failed: {reason}')
         elapsed = time.perf_counter() - start
         transform = _transform_from(calibration, self._now_ns())
-        self._transform, self._calibration, self._quality = transform, calibration, \
-            result.quality
+        self._transform, self._calibration = transform, calibration
         self._failure = None
         summary = self._summary(calibration, result.quality, config)
         self._source = f'computed at {calibration["stamp"]}'
@@ -571,7 +569,7 @@ class LiveCalibrator:
                                   'calibration succeeds')
             self._log('error', self._file_problem)
             return None
-        self._transform, self._calibration, self._quality = transform, calibration, None
+        self._transform, self._calibration = transform, calibration
         self._file_problem = None
         self._source = f'loaded from {path} (computed at {calibration.get("stamp", "?")})'
         self._log('info', f'calibration {self._source}: {transform.parent_frame} -> '
