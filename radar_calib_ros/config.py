@@ -146,15 +146,23 @@ class HypothesesConfig:
     min_passes: int = _p(3, 'fewest agreeing vehicle passes for a calibration', lo=1, hi=1000)
     pass_gap_s: float = _p(2.0, 'tracks closer in time than this belong to one pass [s]',
                            lo=0.0, hi=600.0)
+    pass_margin_m: float = _p(
+        10.0, 'tracks belong to one pass unless the vehicle went farther than this beyond '
+        'the range it was tracked at between them (a stop at a light splits a track, not '
+        'a pass) [m]', lo=0.0, hi=1000.0)
     max_mean_angle_deg: float = _p(
-        5.0, 'largest mean pairwise rotation angle of an accepted hypothesis cluster [deg]',
-        lo=0.01, hi=180.0)
+        5.0, "hypotheses farther than this from their cluster's rotation medoid, and clusters "
+        'with a larger mean pairwise rotation angle, are rejected [deg]', lo=0.01, hi=180.0)
     angle_tie_deg: float = _p(
         1.0, 'clusters this close to the lowest mean angle tie; more passes, then lower RMS '
         'win [deg]', lo=0.0, hi=180.0)
     reflection_height_m: float = _p(
         0.5, 'prior mean height of the vehicle reflections above the road [m]',
         lo=-1.0, hi=5.0)
+    max_cluster_rms_m: float = _p(
+        1.2, 'a track joins the accepted cluster only if the merged transform fits it within '
+        "this RMS (the vehicle's own tracks fit to decimetres, coincidences to metres) [m]",
+        lo=0.01, hi=100.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -143,12 +143,23 @@ def generate_hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording,
     return hyps
 
 
-def merge_intervals_ns(intervals_ns: I64, gap_s: float) -> I64:
+def merge_intervals_ns(intervals_ns: I64, gap_s: float,
+                       away_stamps_ns: I64 | None = None) -> I64:
     """(p, 2) distinct passes from (n, 2) [start, end] intervals.
 
-    Intervals that overlap or lie within ``gap_s`` of each other are one pass: a track can
-    be cut into fragments by the association, and the fragments of one drive through the
-    view are one observation, not several.
+    Two intervals are one pass when they overlap, lie within ``gap_s`` of each other, or
+    (with ``away_stamps_ns``) the vehicle was never away from the radar between them. A
+    track can be cut into fragments by the association, or by a stop at a light (a
+    stopped car has no moving targets), and the fragments of one drive through the view
+    are one observation, not several.
+
+    Parameters
+    ----------
+    intervals_ns : ndarray of shape (n, 2)
+    gap_s : float
+    away_stamps_ns : ndarray of shape (m,), sorted, optional
+        Pose stamps at which the vehicle was out of the radar's reach
+        (:func:`away_stamps_ns`).
     """
     intervals_ns = np.asarray(intervals_ns, np.int64).reshape(-1, 2)
     if intervals_ns.shape[0] == 0:
@@ -158,10 +169,38 @@ def merge_intervals_ns(intervals_ns: I64, gap_s: float) -> I64:
     reach = np.maximum.accumulate(ends)
     new_pass = np.ones(starts.size, bool)
     new_pass[1:] = starts[1:] - reach[:-1] > round(gap_s * 1e9)
+    if away_stamps_ns is not None:
+        away = np.asarray(away_stamps_ns, np.int64)
+        left = np.searchsorted(away, reach[:-1], side='right')
+        right = np.searchsorted(away, starts[1:], side='left')
+        new_pass[1:] &= right > left
     group = np.cumsum(new_pass) - 1
     merged_end = np.full(group[-1] + 1, np.iinfo(np.int64).min, np.int64)
     np.maximum.at(merged_end, group, ends)
     return np.column_stack([starts[new_pass], merged_end])
+
+
+def away_stamps_ns(vehicle: VehicleTrack, sensor_xy_m: F64, reach_m: float) -> I64:
+    """Sorted pose stamps at which the vehicle was farther than ``reach_m`` from the sensor
+    (horizontally): two tracks with none of them in between saw one stay in the view."""
+    d = np.hypot(vehicle.positions_m[:, 0] - sensor_xy_m[0],
+                 vehicle.positions_m[:, 1] - sensor_xy_m[1])
+    away: I64 = vehicle.stamps_ns[d > reach_m]
+    return away
+
+
+def count_passes(tracks: Sequence[SmoothedTrack], sensor_xy_m: F64, vehicle: VehicleTrack,
+                 config: CalibConfig) -> I64:
+    """(p, 2) passes of a set of tracks believed to be the vehicle's, for a sensor at
+    ``sensor_xy_m`` (world). The reach is the farthest the tracks ever saw the vehicle
+    (their levelled positions are sensor-relative) plus ``hypotheses.pass_margin_m``."""
+    if not tracks:
+        return np.zeros((0, 2), np.int64)
+    intervals = np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in tracks], np.int64)
+    reach = max(float(np.hypot(t.positions_m[:, 0], t.positions_m[:, 1]).max())
+                for t in tracks) + config.hypotheses.pass_margin_m
+    away = away_stamps_ns(vehicle, sensor_xy_m, reach)
+    return merge_intervals_ns(intervals, config.hypotheses.pass_gap_s, away)
 
 
 def _path_length_m(positions_m: F64) -> float:
@@ -171,12 +210,25 @@ def _path_length_m(positions_m: F64) -> float:
 
 
 @dataclass(frozen=True, slots=True)
-class _ClusterSummary:
+class _Cluster:
+    """One translation cluster and its consistent core.
+
+    members: indices of the hypotheses DBSCAN put in the cluster; core: those that agree
+    in rotation and fit the core's merged transform; passes: (p, 2) of the core.
+    """
+
     label: int
     members: I64
-    mean_angle_deg: float
+    member_passes: int
+    core: I64
     passes: I64
-    median_rms_m: float
+    mean_angle_deg: float
+    fit: registration.RigidFit | None
+    n_correspondences: int
+
+    @property
+    def n_passes(self) -> int:
+        return int(self.passes.shape[0])
 
 
 def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ...],
@@ -184,22 +236,31 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
                      config: CalibConfig) -> HypothesisSelection:
     """Accept the cluster of hypotheses that agree and re-estimate the calibration.
 
-    Hypotheses are clustered by translation (DBSCAN, ``eps_m``, ``min_samples``). A
-    cluster is eligible when its tracks cover at least ``min_passes`` distinct passes:
-    fragments of a single pass of another car agree with each other perfectly, so
-    agreement only counts across passes. Among eligible clusters the lowest mean pairwise
-    rotation angle wins (the paper's rule); clusters within ``angle_tie_deg`` of it tie,
-    and the tie goes to the cluster seen in more passes, then to the one whose tracks
-    follow the vehicle's poses more closely in time (lower median RMS): a car that drove
-    a similar path at another moment, or beside the vehicle, matches the poses worse and
-    not on every pass. The transform is then re-fitted on the merged correspondences of
-    the accepted tracks and concatenated with the ground plane's R_αβ.
+    Hypotheses are clustered by translation (DBSCAN, ``eps_m``, ``min_samples``), as in
+    the paper. Translation alone chains other road users' hypotheses into the vehicle's
+    cluster (and forms chance clusters of its own: cross traffic that starts with the
+    vehicle at every green, a vehicle driving out of range), so each cluster is reduced
+    to its consistent core before it is judged:
+
+    - rotation: members within ``max_mean_angle_deg`` of the cluster's rotation medoid;
+    - fit: the core's merged transform (the paper's re-estimate) must explain each of its
+      tracks within ``max_cluster_rms_m``; the worst track is dropped until it does. The
+      vehicle's own tracks fit its poses to decimetres, coincidences to metres.
+
+    A core is eligible when its tracks span at least ``min_passes`` distinct passes
+    (fragments of one pass of another car agree perfectly with each other, so agreement
+    only counts across passes). Among eligible cores the lowest mean pairwise rotation
+    angle wins (the paper's rule); cores within ``angle_tie_deg`` of it tie, and the tie
+    goes to the core seen in more passes (the vehicle is seen on every pass, a decoy only
+    by coincidence), then to the lower merged RMS (the vehicle's timing matches its own
+    poses better than any other car's). The core's merged transform is concatenated with
+    the ground plane's R_αβ.
 
     Raises
     ------
     InsufficientDataError
-        No hypothesis (vehicle never seen), fewer than ``min_passes`` passes, or no
-        cluster of agreeing hypotheses.
+        No hypothesis or no cluster that fits (vehicle never seen), fewer than
+        ``min_passes`` passes, or hypotheses that do not agree.
     """
     cfg = config.hypotheses
     if not hyps:
@@ -208,8 +269,9 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
             f'follows its poses (registration RMS <= {cfg.max_rms_m:g} m over at least '
             f'{cfg.min_track_frames} frames)')
     by_id = {int(t.track_id): t for t in tracks}
-    intervals = np.array([[by_id[h.track_id].stamps_ns[0], by_id[h.track_id].stamps_ns[-1]]
-                          for h in hyps], np.int64)
+    hyp_tracks = [by_id[h.track_id] for h in hyps]
+    # an upper bound of the passes (time gaps only): even all hypotheses together
+    intervals = np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in hyp_tracks], np.int64)
     all_passes = merge_intervals_ns(intervals, cfg.pass_gap_s).shape[0]
     if all_passes < cfg.min_passes:
         raise InsufficientDataError(
@@ -218,44 +280,118 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     translations = np.array([h.translation_m for h in hyps])
     labels = DBSCAN(eps=cfg.eps_m, min_samples=cfg.min_samples).fit_predict(translations)
     labels = labels.astype(np.int64)
-    rotations = np.array([h.rotation for h in hyps])
-    rms = np.array([h.rms_m for h in hyps])
-    summaries = []
-    for label in np.unique(labels[labels >= 0]):
-        members = np.flatnonzero(labels == label)
-        summaries.append(_ClusterSummary(
-            int(label), members, _mean_pairwise_angle_deg(rotations[members]),
-            merge_intervals_ns(intervals[members], cfg.pass_gap_s),
-            float(np.median(rms[members]))))
-    mean_angles = {s.label: s.mean_angle_deg for s in summaries}
-    eligible = [s for s in summaries if s.passes.shape[0] >= cfg.min_passes]
+    corrs = {c.track_id: c for c in track_correspondences(hyp_tracks, recording, config)}
+    clusters = [_cluster_core(int(label), np.flatnonzero(labels == label), hyps, hyp_tracks,
+                              corrs, recording, config)
+                for label in np.unique(labels[labels >= 0])]
+    mean_angles = {c.label: c.mean_angle_deg for c in clusters}
+    eligible = [c for c in clusters if c.fit is not None and c.n_passes >= cfg.min_passes
+                and c.mean_angle_deg <= cfg.max_mean_angle_deg]
     if not eligible:
-        largest = max((s.passes.shape[0] for s in summaries), default=0)
-        raise InsufficientDataError(
-            _STAGE, f'hypotheses do not agree: {len(hyps)} hypotheses from '
-            f'{_n_passes(all_passes)} form no cluster (translations within '
-            f'{cfg.eps_m:g} m) spanning {cfg.min_passes} passes; the largest spans '
-            f'{_n_passes(largest)}')
-    best_angle = min(s.mean_angle_deg for s in eligible)
-    tied = [s for s in eligible if s.mean_angle_deg <= best_angle + cfg.angle_tie_deg]
-    accepted = min(tied, key=lambda s: (-s.passes.shape[0], s.median_rms_m,
-                                        s.mean_angle_deg))
-    if accepted.mean_angle_deg > cfg.max_mean_angle_deg:
-        raise InsufficientDataError(
-            _STAGE, f'hypotheses do not agree: the best cluster ({accepted.members.size} '
-            f'tracks, {_n_passes(accepted.passes.shape[0])}) has a mean pairwise rotation '
-            f'of {accepted.mean_angle_deg:.2f} deg > {cfg.max_mean_angle_deg:g} deg')
-    accepted_ids = tuple(int(hyps[i].track_id) for i in accepted.members)
-    corrs = track_correspondences([by_id[i] for i in accepted_ids], recording, config)
-    source = np.concatenate([c.source_m for c in corrs])
-    target = np.concatenate([c.target_m for c in corrs])
-    fit = registration.fit_yaw_translation(source, target)
-    extrinsics = Extrinsics(fit.rotation @ ground.rotation_level, fit.translation_m, 0.0)
-    _LOG.debug('accepted cluster %d: %d tracks, %d passes, mean angle %.3f deg, rms %.3f m',
-               accepted.label, len(accepted_ids), accepted.passes.shape[0],
-               accepted.mean_angle_deg, fit.rms_m)
+        raise InsufficientDataError(_STAGE, _no_cluster_reason(clusters, len(hyps),
+                                                               all_passes, config))
+    best_angle = min(c.mean_angle_deg for c in eligible)
+    tied = [c for c in eligible if c.mean_angle_deg <= best_angle + cfg.angle_tie_deg]
+    accepted = min(tied, key=lambda c: (-c.n_passes, _rms(c), c.mean_angle_deg))
+    assert accepted.fit is not None
+    accepted_ids = tuple(int(hyps[i].track_id) for i in accepted.core)
+    extrinsics = Extrinsics(accepted.fit.rotation @ ground.rotation_level,
+                            accepted.fit.translation_m, 0.0)
+    _LOG.debug('accepted cluster %d: %d of %d tracks, %d passes, mean angle %.3f deg, '
+               'rms %.3f m', accepted.label, accepted.core.size, accepted.members.size,
+               accepted.n_passes, accepted.mean_angle_deg, accepted.fit.rms_m)
     return HypothesisSelection(tuple(hyps), labels, accepted.label, mean_angles, accepted_ids,
-                               extrinsics, int(source.shape[0]), accepted.passes)
+                               extrinsics, accepted.n_correspondences, accepted.passes)
+
+
+def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],
+                  hyp_tracks: Sequence[SmoothedTrack], corrs: dict[int, Correspondences],
+                  recording: Recording, config: CalibConfig) -> _Cluster:
+    """Reduce a translation cluster to the hypotheses that agree (see prune_hypotheses)."""
+    cfg = config.hypotheses
+    rotations = np.array([hyps[i].rotation for i in members])
+    sensor_xy = np.array([hyps[i].translation_m[:2] for i in members]).mean(axis=0)
+    member_passes = count_passes([hyp_tracks[i] for i in members], sensor_xy,
+                                 recording.vehicle, config).shape[0]
+    angles = registration.pairwise_rotation_angles_deg(rotations)
+    medoid = int(np.argmin(np.median(angles, axis=1)))
+    core = members[angles[medoid] <= cfg.max_mean_angle_deg]
+    # consensus by member (RANSAC over the hypotheses): the hypothesis that explains the
+    # most correspondences of the others within max_cluster_rms_m seeds the core, so a
+    # decoy with many correspondences cannot drag the first merged fit off
+    parts = [corrs[hyps[i].track_id] for i in core]
+    source = np.concatenate([c.source_m for c in parts])
+    target = np.concatenate([c.target_m for c in parts])
+    sizes = np.array([c.source_m.shape[0] for c in parts])
+    owner = np.repeat(np.arange(core.size), sizes)
+    best_support, best_inliers = -1, np.zeros(core.size, bool)
+    for i in core:
+        rms = _track_rms(hyps[i].rotation, hyps[i].translation_m, source, target, owner,
+                         core.size)
+        inliers = rms <= cfg.max_cluster_rms_m
+        support = int(sizes[inliers].sum())
+        if support > best_support:
+            best_support, best_inliers = support, inliers
+    core = core[best_inliers]
+    fit: registration.RigidFit | None = None
+    n_corr = 0
+    while core.size:
+        parts = [corrs[hyps[i].track_id] for i in core]
+        source = np.concatenate([c.source_m for c in parts])
+        target = np.concatenate([c.target_m for c in parts])
+        owner = np.repeat(np.arange(core.size), [c.source_m.shape[0] for c in parts])
+        fit = registration.fit_yaw_translation(source, target)
+        track_rms = _track_rms(fit.rotation, fit.translation_m, source, target, owner,
+                               core.size)
+        worst = int(np.argmax(track_rms))
+        if track_rms[worst] <= cfg.max_cluster_rms_m:
+            n_corr = int(source.shape[0])
+            break
+        core = np.delete(core, worst)
+        fit = None
+    passes = (count_passes([hyp_tracks[i] for i in core], sensor_xy, recording.vehicle, config)
+              if core.size else np.zeros((0, 2), np.int64))
+    return _Cluster(label, members, member_passes, core, passes,
+                    _mean_pairwise_angle_deg(np.array([hyps[i].rotation for i in core]))
+                    if core.size else float('inf'), fit, n_corr)
+
+
+def _track_rms(rotation: F64, translation_m: F64, source: F64, target: F64, owner: I64,
+               n_tracks: int) -> F64:
+    """(n_tracks,) horizontal RMS of each track's correspondences under a transform."""
+    residual = source[:, :2] @ rotation[:2, :2].T + translation_m[:2] - target[:, :2]
+    sq = np.einsum('ij,ij->i', residual, residual)
+    rms: F64 = np.sqrt(np.bincount(owner, sq, n_tracks) / np.bincount(owner,
+                                                                      minlength=n_tracks))
+    return rms
+
+
+def _rms(cluster: _Cluster) -> float:
+    return cluster.fit.rms_m if cluster.fit is not None else float('inf')
+
+
+def _no_cluster_reason(clusters: Sequence[_Cluster], n_hyps: int, all_passes: int,
+                       config: CalibConfig) -> str:
+    """The plain reason why no cluster is eligible, with the numbers."""
+    cfg = config.hypotheses
+    if not clusters:
+        return (f'hypotheses do not agree: none of the {n_hyps} hypotheses (from up to '
+                f'{_n_passes(all_passes)}) has a translation within {cfg.eps_m:g} m of '
+                'another')
+    fitting = [c for c in clusters if c.fit is not None]
+    if not fitting:
+        return (f'the calibration vehicle was never seen clearly: no group of hypotheses '
+                f'fits its poses within {cfg.max_cluster_rms_m:g} m RMS (of '
+                f'{len(clusters)} translation clusters)')
+    widest = max(fitting, key=lambda c: (c.n_passes, -c.mean_angle_deg))
+    if widest.member_passes >= cfg.min_passes:
+        return (f'hypotheses do not agree: the cluster of {widest.members.size} hypotheses '
+                f'over {_n_passes(widest.member_passes)} has only {widest.core.size} that '
+                f'agree in rotation (within {cfg.max_mean_angle_deg:g} deg) and fit the '
+                f'vehicle within {cfg.max_cluster_rms_m:g} m, spanning '
+                f'{_n_passes(widest.n_passes)}; need {cfg.min_passes}')
+    return (f'calibration vehicle seen in {_n_passes(widest.n_passes)}, need at least '
+            f'{cfg.min_passes}')
 
 
 def _mean_pairwise_angle_deg(rotations: F64) -> float:

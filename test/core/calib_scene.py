@@ -69,20 +69,23 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
                target_noise_m: float = 0.0, interior_targets: int = 5,
                split_pass: int | None = None, random_cars: int = 0,
                followers: float | None = None, radar_stamp_shift_s: float = 0.0,
+               stop_pass: int | None = None, stop_s: float = 12.0,
                config: CalibConfig | None = None) -> Scene:
     """Build a scene.
 
     lanes: lane index per pass (default 0, 1, 2, ...); split_pass: that pass's track is
     cut in two fragments; random_cars: other cars on random straight paths (hypotheses
     that do not fit); followers: a car following the vehicle on every pass with this lag
-    [s]; radar_stamp_shift_s: radar stamps are this much late against the pose clock.
+    [s]; radar_stamp_shift_s: radar stamps are this much late against the pose clock;
+    stop_pass: in that pass the vehicle stops for stop_s in view after 3 s (a stopped car
+    has no moving targets: its track is cut in two).
     """
     rng = np.random.default_rng(seed)
     config = config or CalibConfig()
     truth, level = truth_extrinsics()
     lanes = lanes if lanes is not None else list(range(n_passes))
-    windows = [(10.0 + PASS_PERIOD_S * k, 10.0 + PASS_PERIOD_S * k + PASS_S)
-               for k in range(n_passes)]
+    windows = [(10.0 + PASS_PERIOD_S * k, 10.0 + PASS_PERIOD_S * k + PASS_S
+                + (stop_s if k == stop_pass else 0.0)) for k in range(n_passes)]
     total_s = windows[-1][1] + 10.0
 
     # vehicle poses: on the lane during a pass, parked far away otherwise
@@ -90,12 +93,12 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
     xy = np.tile(PARKED, (t_pose.size, 1))
     yaw = np.zeros(t_pose.size)
     vel = np.zeros((t_pose.size, 3))
-    for (start, end), lane in zip(windows, lanes):
+    for k, ((start, end), lane) in enumerate(zip(windows, lanes)):
         m = (t_pose >= start) & (t_pose <= end)
-        tau = t_pose[m] - start
+        tau = _path_time(t_pose[m] - start, stop_s if k == stop_pass else 0.0)
         xy[m], heading = _lane_path(lane, tau, truth)
         yaw[m] = heading
-        speed = 6.0 + tau
+        speed = np.where(np.diff(tau, append=np.inf) > 0, 6.0 + tau, 0.0)
         vel[m, 0], vel[m, 1] = speed * np.cos(heading), speed * np.sin(heading)
     ref_z = ROAD_Z + config.vehicle.ref_height
     pose_ns = (t_pose * 1e9).astype(np.int64) + 1_000_000_000
@@ -129,13 +132,21 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
 
     for k, (start, end) in enumerate(windows):
         idx = np.flatnonzero((t_radar > start + 0.1) & (t_radar < end - 0.1))
+        if k == stop_pass:
+            tau = t_radar[idx] - start
+            idx = idx[(tau < 2.9) | (tau > 3.1 + stop_s)]
         pxy, pyaw = pos_at(t_radar[idx])
         centre = np.column_stack([
             vehicle_box.vehicle_to_world(np.column_stack([np.full(idx.size, centre_forward),
                                                           np.zeros(idx.size)]), pxy, pyaw),
             np.full(idx.size, ROAD_Z + config.hypotheses.reflection_height_m)])
-        parts = np.array_split(np.arange(idx.size), 2) if k == split_pass else [
-            np.arange(idx.size)]
+        if k == split_pass:
+            parts = np.array_split(np.arange(idx.size), 2)
+        elif k == stop_pass:
+            before = t_radar[idx] - start < 3.0
+            parts = [np.flatnonzero(before), np.flatnonzero(~before)]
+        else:
+            parts = [np.arange(idx.size)]
         part_ids = []
         for part in parts:
             part_ids.append(add_track(idx[part], centre[part]))
@@ -196,6 +207,11 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
     ground = GroundPlane(normal, -6.0, level, 0.0, np.zeros(0, np.int64))
     return Scene(recording, tuple(tracks), tracked, ground, truth, config,
                  tuple(vehicle_ids), windows)
+
+
+def _path_time(tau: np.ndarray, stop_s: float) -> np.ndarray:
+    """Time along the lane's motion profile with a stop of stop_s after 3 s."""
+    return np.minimum(tau, 3.0) + np.maximum(tau - 3.0 - stop_s, 0.0)
 
 
 def _pose_at(t_pose: np.ndarray, xy: np.ndarray, yaw: np.ndarray):

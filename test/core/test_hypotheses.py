@@ -1,6 +1,8 @@
 """Stage 6: hypotheses per track, the cluster filter, passes, and the exit-1 cases."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from calib_scene import make_scene, with_hypotheses
@@ -58,6 +60,21 @@ def test_decoys_are_rejected_and_fragments_merge_into_one_pass() -> None:
     assert selection.n_passes == 4
     np.testing.assert_allclose(selection.extrinsics.translation_m,
                                scene.truth.translation_m, atol=1e-7)
+
+
+def test_a_stop_in_view_splits_a_track_not_a_pass() -> None:
+    # 12 s stopped at a light in view: two tracks far apart in time, one pass
+    scene = make_scene(n_passes=3, stop_pass=1, stop_s=12.0)
+    hyps, selection = _select(scene)
+    assert len(selection.accepted_track_ids) == 4
+    intervals = np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in scene.tracks])
+    assert hypotheses.merge_intervals_ns(intervals, 2.0).shape[0] == 4  # by time alone
+    assert selection.n_passes == 3
+    np.testing.assert_allclose(selection.extrinsics.translation_m,
+                               scene.truth.translation_m, atol=1e-7)
+    # ... while two passes with the vehicle parked far away in between stay two
+    with pytest.raises(InsufficientDataError, match='seen in 2 passes'):
+        _select(make_scene(n_passes=2, stop_pass=1))
 
 
 def test_follower_cluster_loses_the_tie_on_timing() -> None:
@@ -131,11 +148,67 @@ def test_disagreeing_hypotheses_exit() -> None:
     with pytest.raises(InsufficientDataError, match='hypotheses do not agree'):
         hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
                                     scene.config)
-    # translations agree but rotations scatter by ~10 deg
-    hyps = [Hypothesis(t.track_id, registration.yaw_rotation(np.radians(10.0 * i)) @ truth_bev,
-                       scene.truth.translation_m, 80, 0.1) for i, t in enumerate(scene.tracks)]
-    with pytest.raises(InsufficientDataError, match='mean pairwise rotation'):
-        hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+    # translations agree but each pass saw the world rotated by another 10 deg about the
+    # sensor: every track fits its own hypothesis perfectly, no two agree in rotation
+    tracks = []
+    for i, t in enumerate(scene.tracks):
+        rot = registration.yaw_rotation(np.radians(10.0 * i))[:2, :2]
+        tracks.append(replace(t, positions_m=t.positions_m @ rot.T))
+    tracks = tuple(tracks)
+    hyps = hypotheses.generate_hypotheses(tracks, scene.recording, scene.ground, scene.config)
+    assert len(hyps) == 4 and max(h.rms_m for h in hyps) < 1e-6
+    with pytest.raises(InsufficientDataError, match='hypotheses do not agree: the cluster of 4 '
+                       'hypotheses over 4 passes has only 1 that agree in rotation'):
+        hypotheses.prune_hypotheses(hyps, tracks, scene.recording, scene.ground, scene.config)
+
+
+def _vehicle_and_other_tracks(scene):  # type: ignore[no-untyped-def]
+    vehicle = [t for t in scene.tracks if t.track_id in scene.vehicle_track_ids]
+    others = [t for t in scene.tracks if t.track_id not in scene.vehicle_track_ids]
+    return vehicle, others
+
+
+def test_cluster_is_cut_to_its_consistent_core() -> None:
+    # other cars' hypotheses land on the vehicle's translation (DBSCAN chains them in):
+    # one with a rotation 20 deg off, others with the right rotation but tracks that do
+    # not follow the vehicle's poses at all
+    scene = make_scene(n_passes=4, random_cars=6, seed=7)
+    truth_bev = scene.truth.rotation @ scene.ground.rotation_level.T
+    vehicle, others = _vehicle_and_other_tracks(scene)
+    t = scene.truth.translation_m
+    hyps = [Hypothesis(v.track_id, truth_bev, t, 80, 0.0) for v in vehicle]
+    hyps.append(Hypothesis(others[0].track_id,
+                           registration.yaw_rotation(np.radians(20.0)) @ truth_bev, t, 80, 0.5))
+    hyps += [Hypothesis(o.track_id, truth_bev, t + 0.5, 80, 0.5) for o in others[1:]]
+    selection = hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+                                            scene.config)
+    assert np.unique(selection.labels).tolist() == [0]  # one translation cluster
+    assert set(selection.accepted_track_ids) == set(scene.vehicle_track_ids)
+    np.testing.assert_allclose(selection.extrinsics.translation_m, t, atol=1e-7)
+
+
+def test_chance_cluster_of_other_cars_means_never_seen() -> None:
+    # the vehicle is never tracked; other cars' hypotheses happen to agree over 3+ passes
+    # but their tracks do not follow the vehicle's poses
+    scene = make_scene(n_passes=5, random_cars=60, seed=8)
+    truth_bev = scene.truth.rotation @ scene.ground.rotation_level.T
+    _, others = _vehicle_and_other_tracks(scene)
+    # only cars seen while the vehicle was parked out of view
+    stamp0 = scene.recording.frame_stamps_ns[0] - 3_000_000  # frame times start at 3 ms
+    others = [o for o in others if not any(
+        lo - 1 < (o.stamps_ns[-1] - stamp0) * 1e-9 and (o.stamps_ns[0] - stamp0) * 1e-9 < hi + 1
+        for lo, hi in scene.windows_s)]
+    # ... and apart in time, so they count as separate passes
+    apart: list = []
+    for o in sorted(others, key=lambda o: o.stamps_ns[0]):
+        if not apart or o.stamps_ns[0] - apart[-1].stamps_ns[-1] > 3e9:
+            apart.append(o)
+    others = apart
+    assert len(others) >= 3
+    hyps = [Hypothesis(o.track_id, truth_bev, scene.truth.translation_m, 80, 1.0)
+            for o in others]
+    with pytest.raises(InsufficientDataError, match='never seen clearly'):
+        hypotheses.prune_hypotheses(hyps, tuple(others), scene.recording, scene.ground,
                                     scene.config)
 
 
@@ -148,3 +221,9 @@ def test_merge_intervals_boundaries() -> None:
     np.testing.assert_array_equal(merged, [[0, 6 * s], [10 * s, 15 * s]])
     assert hypotheses.merge_intervals_ns(intervals, 0.0).shape == (4, 2)
     assert hypotheses.merge_intervals_ns(np.zeros((0, 2), np.int64), 2.0).shape == (0, 2)
+    # with the vehicle's away moments: only a gap holding one separates passes
+    away = np.array([8 * s, 8 * s + 1])
+    merged = hypotheses.merge_intervals_ns(intervals, 0.0, away)
+    np.testing.assert_array_equal(merged, [[0, 6 * s], [10 * s, 15 * s]])
+    merged = hypotheses.merge_intervals_ns(intervals, 0.0, np.zeros(0, np.int64))
+    np.testing.assert_array_equal(merged, [[0, 15 * s]])
