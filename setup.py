@@ -23,7 +23,7 @@ setup(
         'numpy>=1.24',
         'scipy>=1.10',
         'filterpy==2.0.0',
-        'rosbags>=0.10',
+        'rosbags>=0.11',
         'pyproj>=3.4',
         'PyYAML>=6.0',
         'scikit-learn>=1.2',
