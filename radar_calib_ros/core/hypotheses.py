@@ -213,13 +213,15 @@ def _path_length_m(positions_m: F64) -> float:
 class _Cluster:
     """One translation cluster and its consistent core.
 
-    members: indices of the hypotheses DBSCAN put in the cluster; core: those that agree
-    in rotation and fit the core's merged transform; passes: (p, 2) of the core.
+    members: indices of the hypotheses DBSCAN put in the cluster (member_angle_deg: their
+    mean pairwise rotation angle, the paper's figure); core: those that agree in rotation
+    and fit the core's merged transform; passes: (p, 2) and mean_angle_deg of the core.
     """
 
     label: int
     members: I64
     member_passes: int
+    member_angle_deg: float
     core: I64
     passes: I64
     mean_angle_deg: float
@@ -284,7 +286,7 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     clusters = [_cluster_core(int(label), np.flatnonzero(labels == label), hyps, hyp_tracks,
                               corrs, recording, config)
                 for label in np.unique(labels[labels >= 0])]
-    mean_angles = {c.label: c.mean_angle_deg for c in clusters}
+    mean_angles = {c.label: c.member_angle_deg for c in clusters}
     eligible = [c for c in clusters if c.fit is not None and c.n_passes >= cfg.min_passes
                 and c.mean_angle_deg <= cfg.max_mean_angle_deg]
     if not eligible:
@@ -351,7 +353,9 @@ def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],
         fit = None
     passes = (count_passes([hyp_tracks[i] for i in core], sensor_xy, recording.vehicle, config)
               if core.size else np.zeros((0, 2), np.int64))
-    return _Cluster(label, members, member_passes, core, passes,
+    return _Cluster(label, members, member_passes,
+                    float(angles[np.triu_indices(members.size, k=1)].mean())
+                    if members.size > 1 else 0.0, core, passes,
                     _mean_pairwise_angle_deg(np.array([hyps[i].rotation for i in core]))
                     if core.size else float('inf'), fit, n_corr)
 

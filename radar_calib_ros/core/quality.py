@@ -69,9 +69,9 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         covariance = bootstrap_covariance(extrinsics, targets, passes, config)
         source = f'bootstrap over {passes.shape[0]} passes ({config.quality.bootstrap} draws)'
     sigma = uncertainty_from_covariance(covariance, extrinsics.rotation)
+    # distinct drives through the view of the accepted tracks (fragments and stops in view
+    # merged); the refinement may group its targets differently, that count goes to extra
     n_passes = selection.n_passes or int(passes.shape[0])
-    if refinement is not None and refinement.n_passes > 0:
-        n_passes = refinement.n_passes
     headings = _pass_headings_deg(targets, passes)
     advice = list(refinement.diagnostics.get('advice', [])) if refinement is not None else []
     advice += _advice(n_passes, headings, sigma, paper.inlier_ratio, refinement is None,
@@ -85,6 +85,7 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     }
     if refinement is not None:
         extra['refinement_targets'] = int(refinement.n_targets)
+        extra['refinement_passes'] = int(refinement.n_passes)
     return QualityReport(
         inlier_ratio=paper.inlier_ratio,
         outlier_distance_m=paper.outlier_distance_m,
