@@ -1,0 +1,134 @@
+"""Stage 4: the ground plane and R_alpha_beta."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from radar_calib_ros.config import GroundConfig
+from radar_calib_ros.core import ground_plane
+from radar_calib_ros.core.ground_plane import fit_ground_plane, level_rotation
+from radar_calib_ros.errors import InsufficientDataError
+
+ROLL_DEG, PITCH_DEG, HEIGHT_M = 1.5, 8.0, 7.0
+
+
+def _scene(seed: int, n: int = 150_000, ghosts: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Moving targets of a roadside radar: vehicles on eight lanes 10-80 m ahead, reflections
+    anywhere from the road to 1.5 m up, multipath ghosts mirrored below the road, and the
+    radar's noise in spherical coordinates (range 0.15 m, azimuth 0.3 deg, elevation 1.5
+    deg). Returns the targets in the sensor frame and the true road normal there."""
+    rng = np.random.default_rng(seed)
+    lanes = np.array([-12.0, -8.5, -5.0, -1.5, 1.5, 5.0, 8.5, 12.0])
+    x = rng.uniform(10.0, 80.0, n)
+    y = rng.choice(lanes, n) + rng.uniform(-0.9, 0.9, n)
+    z = rng.uniform(0.0, 1.5, n)
+    ghost = rng.random(n) < ghosts
+    z[ghost] = -z[ghost]
+    world = np.column_stack([x, y, z - HEIGHT_M])
+    rotation = Rotation.from_euler('xyz', [ROLL_DEG, PITCH_DEG, 0.0], degrees=True).as_matrix()
+    sensor = world @ rotation                        # rotation.T @ p for each row
+    r = np.linalg.norm(sensor, axis=1)
+    az = np.arctan2(sensor[:, 1], sensor[:, 0]) + np.radians(rng.normal(0.0, 0.3, n))
+    el = np.arcsin(sensor[:, 2] / r) + np.radians(rng.normal(0.0, 1.5, n))
+    r = r + rng.normal(0.0, 0.15, n)
+    noisy = np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az),
+                             r * np.sin(el)])
+    return noisy, rotation.T @ np.array([0.0, 0.0, 1.0])
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return math.degrees(math.acos(min(1.0, abs(float(a @ b)))))
+
+
+def test_recovers_known_roll_and_pitch() -> None:
+    points, up = _scene(seed=7)
+    plane = fit_ground_plane(points, GroundConfig())
+    assert _angle_deg(plane.normal, up) < 0.05
+    assert plane.normal @ up > 0.0                    # pointing up, to the sensor's side
+    # the mean reflection height sits in the offset, not in the normal
+    assert -HEIGHT_M < plane.offset_m < -HEIGHT_M + 1.0
+    np.testing.assert_allclose(plane.rotation_level @ plane.normal, [0.0, 0.0, 1.0],
+                               atol=1e-12)
+    assert plane.used.size > 0.5 * points.shape[0]
+
+
+def test_yaw_of_the_radar_does_not_change_the_plane() -> None:
+    """Equivariance of the public fit under rotations about the sensor's vertical axis
+    (they keep every target's elevation and its error direction)."""
+    points, _ = _scene(seed=3, n=40_000)
+    plane = fit_ground_plane(points, GroundConfig())
+    yaw = Rotation.from_euler('z', 37.0, degrees=True).as_matrix()
+    turned = fit_ground_plane(points @ yaw.T, GroundConfig())
+    np.testing.assert_allclose(turned.normal, yaw @ plane.normal, atol=1e-9)
+    assert turned.offset_m == pytest.approx(plane.offset_m, abs=1e-9)
+
+
+@settings(deadline=None, max_examples=20)
+@given(st.integers(0, 2**31 - 1))
+def test_plane_fit_equivariant_under_rigid_motion(seed: int) -> None:
+    """The fit itself (SVD start, cells, gate, corrected least squares) moves with the
+    cloud when the error directions move with it."""
+    rng = np.random.default_rng(seed)
+    points, _ = _scene(seed=seed % 1000, n=5_000)
+    directions = ground_plane.elevation_directions(points)
+    cell = rng.integers(0, 8, points.shape[0])
+    start, _ = ground_plane._svd_plane(points, np.ones(points.shape[0]))
+    normal, centroid, keep = ground_plane._robust_plane(points, directions, start, cell)
+    rotation = Rotation.random(random_state=rng).as_matrix()
+    shift = rng.uniform(-50.0, 50.0, 3)
+    moved = points @ rotation.T + shift
+    start_m, _ = ground_plane._svd_plane(moved, np.ones(points.shape[0]))
+    normal_m, centroid_m, keep_m = ground_plane._robust_plane(
+        moved, directions @ rotation.T, start_m, cell)
+    np.testing.assert_array_equal(keep, keep_m)
+    sign = np.sign(normal_m @ (rotation @ normal))
+    np.testing.assert_allclose(sign * normal_m, rotation @ normal, atol=1e-9)
+    np.testing.assert_allclose(centroid_m, rotation @ centroid + shift, atol=1e-7)
+
+
+def test_normal_points_to_the_sensor_side() -> None:
+    points, _ = _scene(seed=1, n=20_000)
+    for flip in (1.0, -1.0):                         # the road below, then above the radar
+        plane = fit_ground_plane(points * [1.0, 1.0, flip], GroundConfig())
+        assert plane.offset_m < 0.0
+        assert plane.normal[2] * flip > 0.0
+
+
+def test_static_facade_and_sparse_clutter_do_not_tilt_the_plane() -> None:
+    points, up = _scene(seed=11, n=60_000)
+    rng = np.random.default_rng(11)
+    # a sparse scatter of clutter all over the field of view, 4 % of the targets
+    clutter = np.column_stack([rng.uniform(10.0, 80.0, 2500), rng.uniform(-40.0, 40.0, 2500),
+                               rng.uniform(-8.0, 4.0, 2500)])
+    plane = fit_ground_plane(np.concatenate([points, clutter]), GroundConfig())
+    assert _angle_deg(plane.normal, up) < 0.1
+
+
+def test_too_few_or_collinear_targets_cannot_make_a_plane() -> None:
+    with pytest.raises(InsufficientDataError):
+        fit_ground_plane(np.array([[1.0, 0.0, -5.0], [2.0, 0.0, -5.0], [np.nan, 0, 0]]),
+                         GroundConfig())
+    line = np.column_stack([np.linspace(5.0, 50.0, 200), np.zeros(200), np.full(200, -6.0)])
+    with pytest.raises(InsufficientDataError):
+        fit_ground_plane(line, GroundConfig())
+
+
+@settings(deadline=None, max_examples=200)
+@given(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(0.05, 1.0))
+def test_level_rotation_is_the_smallest_rotation_to_z(nx: float, ny: float, nz: float) -> None:
+    normal = np.array([nx, ny, nz]) / np.linalg.norm([nx, ny, nz])
+    rotation = level_rotation(normal)
+    np.testing.assert_allclose(rotation @ normal, [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(rotation) == pytest.approx(1.0)
+    # no yaw: the axis is horizontal, so the horizontal direction normal x z is kept
+    axis = np.cross(normal, [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(rotation @ axis, axis, atol=1e-12)
+    # and the rotation angle is just the tilt of the normal
+    angle = math.acos(max(-1.0, min(1.0, (np.trace(rotation) - 1.0) / 2.0)))
+    assert angle == pytest.approx(math.acos(normal[2]), abs=1e-7)
