@@ -163,7 +163,8 @@ def refine_polygon(extrinsics: Extrinsics, recording: Recording, tracked: Tracke
        its tracker on these targets; the tracker there only averages frame-to-frame
        scatter, which the least-squares fit over every frame of every pass does as well,
        so the pairs are fitted directly (with Huber weights for the tracker's outlier
-       suppression).
+       suppression). Measured on simulated junctions, smoothing them per pass with the
+       stage-5 UKF/RTS first changed the result by 1-6 cm, never for the better.
     2. Polygon offset: Nelder-Mead finds the 2D world offset minimising the polygon loss
        (:func:`polygon_loss`) over all targets of the accepted tracks within
        2 x ``refine.gate_m`` of the box (a target metres away is another object merged
