@@ -132,6 +132,62 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
         print(f'warning: {advice}', file=sys.stderr)
     print(f'result written to {args.output}' + (f' and {args.json}' if args.json else ''),
           file=out)
+    if args.report:
+        from radar_calib_ros.report import report_calibration
+        start = time.perf_counter()
+        files = report_calibration(args.report, result, config, calibration=calibration,
+                                   truth=_ground_truth(args.bag), source=str(args.bag))
+        print(f'report written to {files.html} ({len(files.figures)} figures, '
+              f'{time.perf_counter() - start:.1f} s)', file=out)
+    return 0
+
+
+def _ground_truth(bag: str | Path) -> dict[str, Any] | None:
+    """The simulator's ground truth next to a bag (the directory, or a metadata.yaml's
+    directory), or None; a broken one is skipped with a warning, never used silently."""
+    from radar_calib_ros.groundtruth import load_ground_truth
+    path = Path(bag)
+    try:
+        return load_ground_truth(path if path.is_dir() else path.parent)
+    except (OSError, ValueError) as err:
+        print(f'warning: ignoring the unreadable ground truth next to {bag}: {err}',
+              file=sys.stderr)
+        return None
+
+
+def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
+    import json
+
+    from radar_calib_ros.evaluate import evaluate_recording, evaluation_dict, format_evaluation
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.result import load_result, write_atomic
+    start = time.perf_counter()
+    config = _load_config(args.params)
+    calibration = load_result(args.calibration)   # a bad file fails before the bag is read
+    recording = read_recording(args.bag, config)
+    read_s = time.perf_counter() - start
+    evaluation = evaluate_recording(recording, calibration, config,
+                                    truth=_ground_truth(args.bag))
+    print(format_evaluation(evaluation), file=out)
+    if args.json:
+        write_atomic(args.json, json.dumps(evaluation_dict(evaluation), indent=2) + '\n')
+    print(f'evaluated in {time.perf_counter() - start:.1f} s (reading {read_s:.1f} s)'
+          + (f'; written to {args.json}' if args.json else ''), file=out)
+    return 0
+
+
+def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.report import report_recording
+    from radar_calib_ros.result import load_result
+    start = time.perf_counter()
+    config = _load_config(args.params)
+    calibration = load_result(args.calibration)
+    recording = read_recording(args.bag, config)
+    files = report_recording(args.out, recording, calibration, config,
+                             truth=_ground_truth(args.bag), source=str(args.bag))
+    print(f'report written to {files.html} ({len(files.figures)} figures, '
+          f'{time.perf_counter() - start:.1f} s)', file=out)
     return 0
 
 
@@ -217,7 +273,44 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--json', help='also write the result as JSON here')
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
                    help='progress bars (default: when stderr is a terminal)')
+    p.add_argument('--report', metavar='DIR',
+                   help='also write the report of this calibration run into DIR: every '
+                   'figure of `radar-calib report` (on this recording) plus those only a '
+                   'calibration run has: hypotheses, refinement residuals, reflection '
+                   'profile, radial-velocity residuals')
     p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser(
+        'evaluate', help="the paper's quality figures of a calibration on a second recording",
+        description='Evaluate a calibration as the paper does: tracking only (no '
+        're-calibration) on a second recording; tracks associated with the calibration '
+        'vehicle by synchronised time, those more than 5 m from it on average dropped, the '
+        'rest merged; r_i, delta_op and delta_p, overall and per range bin. Where the bag '
+        "directory holds the simulator's ground_truth.json, also the position and rotation "
+        'errors. Exit 1 when the vehicle is never seen, 2 on bad input.')
+    p.add_argument('bag', help='rosbag2 directory (sqlite3 or mcap)')
+    p.add_argument('--calibration', required=True, metavar='RESULT',
+                   help='result file of radar-calib calibrate (result.yaml or result.json)')
+    p.add_argument('--params', help='ROS 2 parameters file (default: built-in defaults)')
+    p.add_argument('--json', help='also write the evaluation as JSON here')
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser(
+        'report', help='PNG figures and report.html of a calibration on a recording',
+        description='Write PNG figures and a self-contained report.html for a calibration '
+        'file on a recording, without re-calibrating (a run on a long recording takes '
+        "minutes and would draw a different estimate from the file's): the bird's-eye view "
+        "of a test track, delta_op and delta_p over range (the paper's evaluation on this "
+        'recording) and the ground-plane fit. The hypotheses, the refinement residuals, the '
+        'reflection profile and the radial-velocity residuals exist only inside a '
+        'calibration run: get them with `radar-calib calibrate BAG --report DIR`.')
+    p.add_argument('bag', help='rosbag2 directory (sqlite3 or mcap)')
+    p.add_argument('--calibration', required=True, metavar='RESULT',
+                   help='result file of radar-calib calibrate (result.yaml or result.json)')
+    p.add_argument('--params', help='ROS 2 parameters file (default: built-in defaults)')
+    p.add_argument('--out', required=True, metavar='DIR',
+                   help='directory for the figures and report.html (created if missing)')
+    p.set_defaults(func=cmd_report)
 
     p = sub.add_parser('simulate', help='write a synthetic recording with its ground truth')
     p.add_argument('out_bag', help='bag directory to create')

@@ -1,0 +1,199 @@
+"""radar-calib evaluate: the paper's protocol on a simulated recording, range bins, exit codes."""
+from __future__ import annotations
+
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from radar_calib_ros import evaluate, metrics
+from radar_calib_ros.cli import main
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.evaluate import RangeBin
+from radar_calib_ros.groundtruth import load_ground_truth
+from radar_calib_ros.io.bag import read_recording
+from radar_calib_ros.metrics import PaperMetrics
+from radar_calib_ros.recording import Recording
+from radar_calib_ros.result import load_result, utm_to_extrinsics, write_result_yaml
+from radar_calib_ros.sim import SimulationSummary, simulate
+
+
+@pytest.fixture(scope='module')
+def sim(tmp_path_factory: pytest.TempPathFactory) -> SimulationSummary:
+    """30 s of the baseline scenario: two passes of the calibration vehicle."""
+    return simulate(tmp_path_factory.mktemp('eval') / 'bag', seed=5, duration_s=30.0)
+
+
+@pytest.fixture(scope='module')
+def config(sim: SimulationSummary) -> CalibConfig:
+    return CalibConfig.from_file(sim.paths.params)
+
+
+@pytest.fixture(scope='module')
+def recording(sim: SimulationSummary, config: CalibConfig) -> Recording:
+    return read_recording(sim.paths.bag, config)
+
+
+def _calibration(truth: dict[str, Any], *, shift_m: tuple[float, float, float] = (0, 0, 0),
+                 yaw_deg: float = 0.0) -> dict[str, Any]:
+    """The truth in the result layout, optionally moved and turned about its own position."""
+    cal = {k: v for k, v in truth.items()
+           if k in ('world_frame', 'radar_frame', 'epsg', 'translation', 'quaternion_xyzw',
+                    'rpy_deg', 'latitude', 'longitude', 'altitude', 'boresight_azimuth_deg',
+                    'stamp')}
+    cal['translation'] = [float(a + b) for a, b in zip(truth['translation'], shift_m)]
+    rot = Rotation.from_euler('z', yaw_deg, degrees=True) * Rotation.from_quat(
+        truth['quaternion_xyzw'])
+    cal['quaternion_xyzw'] = [float(v) for v in rot.as_quat()]
+    cal['quality'] = {'time_offset_s': truth['time_offset_s']}
+    return cal
+
+
+def test_at_the_truth_matches_metrics_and_has_no_error(
+        sim: SimulationSummary, config: CalibConfig, recording: Recording) -> None:
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    ev = evaluate.evaluate_recording(recording, _calibration(truth), config, truth=truth)
+    # the same numbers as metrics.py computes by itself on the protocol's tracks
+    tracked = evaluate.track_targets(recording, config)
+    ext = utm_to_extrinsics(Rotation.from_quat(truth['quaternion_xyzw']).as_matrix(),
+                            np.asarray(truth['translation']), recording.frame,
+                            truth['time_offset_s'])
+    ids = metrics.vehicle_track_ids(recording, tracked, ext, config)
+    ref = metrics.recording_metrics(recording, metrics.track_target_index(tracked, ids), ext,
+                                    config)
+    np.testing.assert_array_equal(ev.vehicle_track_ids, ids)
+    assert ev.paper.n_targets == ref.n_targets > 100
+    assert ev.paper.inlier_ratio == pytest.approx(ref.inlier_ratio, abs=1e-12)
+    assert ev.paper.outlier_distance_m == pytest.approx(ref.outlier_distance_m, abs=1e-9)
+    assert ev.paper.closest_target_offset_m == pytest.approx(ref.closest_target_offset_m,
+                                                             abs=1e-9)
+    # the calibration round-trips through the recording's local frame (its origin is the
+    # first vehicle fix) back onto the truth in UTM
+    np.testing.assert_allclose(
+        recording.frame.local_to_utm(ev.extrinsics.translation_m[None, :])[0],
+        truth['translation'], atol=1e-6)
+    assert ev.extrinsics.time_offset_s == pytest.approx(sim.extrinsics.time_offset_s)
+
+    assert ev.errors is not None
+    assert ev.errors['horizontal_m'] < 1e-6 and ev.errors['vertical_m'] < 1e-6
+    assert ev.errors['rotation_deg'] < 1e-6
+    # the protocol picks the calibration vehicle: the simulator labels most of them its own
+    with np.load(sim.paths.targets) as labels:
+        is_vehicle = labels['is_calibration_vehicle']
+    assert is_vehicle.size == len(recording.targets)
+    assert is_vehicle[ev.target_index].mean() > 0.5
+    # at the truth most of the vehicle's targets lie in its box (the paper: 60-79 %)
+    assert ev.paper.inlier_ratio > 0.6
+
+
+def test_a_wrong_calibration_scores_worse_and_shows_its_error(
+        sim: SimulationSummary, config: CalibConfig, recording: Recording) -> None:
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    good = evaluate.evaluate_recording(recording, _calibration(truth), config, truth=truth)
+    bad = evaluate.evaluate_recording(recording, _calibration(truth, yaw_deg=2.0,
+                                                              shift_m=(0.5, 0.0, 0.0)),
+                                      config, truth=truth)
+    assert bad.paper.inlier_ratio < good.paper.inlier_ratio
+    assert bad.paper.outlier_distance_m > good.paper.outlier_distance_m
+    assert bad.errors is not None
+    assert bad.errors['rotation_deg'] == pytest.approx(2.0, abs=1e-6)
+    assert bad.errors['horizontal_m'] == pytest.approx(0.5, abs=1e-6)
+
+
+def test_range_bins_add_up(sim: SimulationSummary, config: CalibConfig,
+                           recording: Recording) -> None:
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    ev = evaluate.evaluate_recording(recording, _calibration(truth), config)
+    assert ev.errors is None
+    bins = ev.range_bins
+    assert sum(b.n_targets for b in bins) == ev.paper.n_targets
+    assert sum(b.n_frames for b in bins) == ev.paper.n_frames
+    inside = sum(b.inlier_ratio * b.n_targets for b in bins if b.n_targets)
+    assert inside / ev.paper.n_targets == pytest.approx(ev.paper.inlier_ratio)
+    dp = sum(b.closest_target_offset_m * b.n_frames for b in bins if b.n_frames)
+    assert dp / ev.paper.n_frames == pytest.approx(ev.paper.closest_target_offset_m)
+    assert [b.lo_m for b in bins][:6] == list(evaluate.DEFAULT_RANGE_EDGES_M[:-1])
+
+
+def test_bin_by_range_hand_checked() -> None:
+    paper = PaperMetrics(
+        inlier_ratio=0.5, outlier_distance_m=2.0, closest_target_offset_m=1.0, n_targets=4,
+        n_outside=2, n_frames=2,
+        distance_m=np.array([0.0, 1.0, 0.0, 3.0]), range_m=np.array([5.0, 15.0, 25.0, 200.0]),
+        closest_offset_m=np.array([0.5, 1.5]), closest_range_m=np.array([4.0, 30.0]))
+    bins = evaluate.bin_by_range(paper, (0.0, 20.0, 40.0))
+    assert bins[:2] == (RangeBin(0.0, 20.0, 2, 0.5, 1.0, 1, 0.5),
+                        RangeBin(20.0, 40.0, 1, 1.0, 0.0, 1, 1.5))
+    # the open bin beyond the last edge: one outside target 3 m off, no frame
+    last = bins[2]
+    assert (last.lo_m, last.hi_m, last.n_targets, last.inlier_ratio,
+            last.outlier_distance_m, last.n_frames) == (40.0, math.inf, 1, 0.0, 3.0, 0)
+    assert math.isnan(last.closest_target_offset_m)
+
+    # an empty open bin is left out; edges must increase
+    assert len(evaluate.bin_by_range(paper, (0.0, 20.0, 40.0, 300.0))) == 3
+    with pytest.raises(ValueError):
+        evaluate.bin_by_range(paper, (0.0, 20.0, 20.0))
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    out = io.StringIO()
+    code = main(argv, out=out)
+    return code, out.getvalue(), capsys.readouterr().err
+
+
+def test_cli_text_and_json(sim: SimulationSummary, tmp_path: Path,
+                           capsys: pytest.CaptureFixture[str]) -> None:
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    cal = tmp_path / 'result.yaml'
+    write_result_yaml(cal, _calibration(truth))
+    assert load_result(cal)['epsg'] == truth['epsg']
+    out_json = tmp_path / 'eval.json'
+    code, out, err = _run(['evaluate', str(sim.paths.bag), '--calibration', str(cal),
+                           '--params', str(sim.paths.params), '--json', str(out_json)], capsys)
+    assert code == 0, err
+    assert 'r_i' in out and 'delta_op' in out and 'delta_p' in out and 'range [m]' in out
+    assert 'against the ground truth: horizontal 0.0 cm' in out
+    doc = json.loads(out_json.read_text())
+    assert 0.6 < doc['inlier_ratio'] <= 1.0
+    assert doc['n_targets'] == sum(b['n_targets'] for b in doc['range_bins'])
+    assert doc['ground_truth_errors']['horizontal_m'] < 1e-6
+    assert doc['time_offset_s'] == pytest.approx(truth['time_offset_s'])
+
+
+def test_cli_bad_calibration_file_exits_2(sim: SimulationSummary, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    bag = str(sim.paths.bag)
+    corrupt = tmp_path / 'corrupt.yaml'
+    corrupt.write_text('calibration: [1, 2\n')
+    not_unit = tmp_path / 'not_unit.yaml'
+    write_result_yaml(not_unit, {'epsg': 32632, 'translation': [1.0, 2.0, 3.0],
+                                 'quaternion_xyzw': [0.0, 0.0, 0.0, 2.0]})
+    for path in (tmp_path / 'missing.yaml', corrupt, not_unit):
+        code, out, err = _run(['evaluate', bag, '--calibration', str(path)], capsys)
+        assert code == 2, (path, err)
+        assert err.startswith('error: ') and err.count('\n') == 1 and 'Traceback' not in err
+        assert out == ''
+    code, _, err = _run(['evaluate', bag], capsys)   # --calibration is required
+    assert code == 2
+
+
+def test_cli_vehicle_never_seen_exits_1(sim: SimulationSummary, tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    far = tmp_path / 'far.yaml'
+    write_result_yaml(far, _calibration(truth, shift_m=(2000.0, 0.0, 0.0)))
+    code, out, err = _run(['evaluate', str(sim.paths.bag), '--calibration', str(far),
+                           '--params', str(sim.paths.params)], capsys)
+    assert code == 1
+    assert 'never seen' in err and err.count('\n') == 1 and out == ''
