@@ -41,8 +41,9 @@ def associate_clusters(targets: Targets, clusters: FrameClusters,
     clusters : FrameClusters
         Stage 2 output.
     cfg : AssociateConfig
-        ``gate_m`` (largest centre jump between windows, and largest miss of a gap
-        prediction), ``max_gap_frames``, ``min_track_frames``.
+        ``gate_m`` (largest jump of a centre between windows, and largest miss of a gap
+        prediction, both in the sensor's x-y plane), ``max_gap_frames``,
+        ``min_track_frames``.
 
     Returns
     -------
@@ -66,7 +67,10 @@ def associate_clusters(targets: Targets, clusters: FrameClusters,
     n_clusters = clusters.n_clusters
     if n_clusters == 0:
         return TrackedTargets(index, np.full(n, -1, np.int64))
-    centres = clusters.centres_m
+    # Distances in the sensor's x-y plane: the height of a centre carries the elevation
+    # noise (1-2 deg, metres at range; worst for the small clusters of a far car), and
+    # the sensor's pitch and roll are small enough for x-y to stand in for the road.
+    centres = clusters.centres_m[:, :2]
     window = clusters.cluster_window
 
     labels = clusters.labels
