@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from radar_calib_ros.config import AssociateConfig
 from radar_calib_ros.core.cluster import FrameClusters
@@ -164,45 +165,55 @@ def _one_to_one(prev: I64, cur: I64, centres: F64, window: I64, n_clusters: int,
         return predecessor
     order = np.argsort(window[a_cur], kind='stable')
     a_prev, a_cur = a_prev[order], a_cur[order]
+    a_dist = np.linalg.norm(centres[a_prev] - centres[a_cur], axis=1)
     w = window[a_cur]
-    bounds = np.flatnonzero(np.r_[True, w[1:] != w[:-1], True])
+    bounds = np.flatnonzero(np.r_[True, w[1:] != w[:-1], True]).tolist()
     for lo, hi in zip(bounds[:-1], bounds[1:]):
-        p, c = a_prev[lo:hi], a_cur[lo:hi]
+        p = a_prev[lo:hi]
         age = _chain_age(p, predecessor)
-        cost = (np.linalg.norm(centres[p] - centres[c], axis=1)
-                - gate_m * np.minimum(age, _AGE_WINDOWS) / _AGE_WINDOWS)
-        rows, cols = _assign(p, c, cost)
+        rows, cols = _assign(p, a_cur[lo:hi], a_dist[lo:hi] - gate_m * age / _AGE_WINDOWS)
         predecessor[cols] = rows
     return predecessor
 
 
 def _chain_age(clusters: I64, predecessor: I64) -> I64:
     """Windows of history behind each cluster, counted up to ``_AGE_WINDOWS``."""
-    age = np.zeros(clusters.size, np.int64)
-    at = clusters
-    for _ in range(_AGE_WINDOWS):
-        back = predecessor[at]
-        has = back >= 0
-        if not has.any():
-            break
-        age += has
-        at = np.where(has, back, at)
-    return age
+    ages = []
+    # A few clusters per call: walking the pointers in Python beats ten numpy passes.
+    for at in clusters.tolist():
+        age = 0
+        while age < _AGE_WINDOWS:
+            at = int(predecessor[at])
+            if at < 0:
+                break
+            age += 1
+        ages.append(age)
+    return np.asarray(ages, np.int64)
 
 
 def _assign(rows_of_link: I64, cols_of_link: I64, cost_of_link: F64) -> tuple[I64, I64]:
-    """Minimum-cost one-to-one subset of candidate links (Hungarian algorithm)."""
-    rows, row_of = np.unique(rows_of_link, return_inverse=True)
-    cols, col_of = np.unique(cols_of_link, return_inverse=True)
+    """Minimum-cost one-to-one subset of candidate links (Hungarian algorithm).
+
+    Called once per ambiguous window, mostly with a handful of links: the bookkeeping is
+    plain Python, which is several times faster than numpy's set routines at that size.
+    """
+    row_list, col_list = rows_of_link.tolist(), cols_of_link.tolist()
+    rows, cols = sorted(set(row_list)), sorted(set(col_list))
+    if len(rows) == 1 or len(cols) == 1:
+        # One cluster on one side (a split or a merge): the cheapest link is the answer.
+        best = int(np.argmin(cost_of_link))
+        return rows_of_link[best:best + 1], cols_of_link[best:best + 1]
+    row_at = {r: i for i, r in enumerate(rows)}
+    col_at = {c: j for j, c in enumerate(cols)}
     # Non-candidates cost more than any set of candidates, so the assignment uses as many
     # candidate links as it can; assigned non-candidates are dropped afterwards.
-    span = float(cost_of_link.max() - cost_of_link.min()) + 1.0
-    forbidden = float(cost_of_link.max()) + span * (rows.size + cols.size + 1)
-    cost = np.full((rows.size, cols.size), forbidden)
-    cost[row_of, col_of] = cost_of_link
+    low, high = float(cost_of_link.min()), float(cost_of_link.max())
+    forbidden = high + (high - low + 1.0) * (len(rows) + len(cols) + 1)
+    cost = np.full((len(rows), len(cols)), forbidden)
+    cost[[row_at[r] for r in row_list], [col_at[c] for c in col_list]] = cost_of_link
     r, c = linear_sum_assignment(cost)
     ok = cost[r, c] < forbidden
-    return rows[r[ok]], cols[c[ok]]
+    return (np.asarray(rows, np.int64)[r[ok]], np.asarray(cols, np.int64)[c[ok]])
 
 
 def _components(a: I64, b: I64, n: int) -> I64:
@@ -215,8 +226,9 @@ def _bridge_gaps(tails: I64, heads: I64, predecessor: I64, centres: F64, window:
                  cfg: AssociateConfig) -> tuple[I64, I64]:
     """One-to-one links from chain ends to chain starts across gaps of windows.
 
-    A start is a candidate for an end when it lies 2 .. ``max_gap_frames + 1`` windows
-    later and within ``gate_m`` of the end's centre continued at the chain's velocity.
+    A start is a candidate for an end when it lies 1 .. ``max_gap_frames + 1`` windows
+    later (at most ``max_gap_frames`` frames unseen) and within ``gate_m`` of the end's
+    centre continued at the chain's velocity.
     """
     empty = np.zeros(0, np.int64)
     if cfg.max_gap_frames == 0 or tails.size == 0 or heads.size == 0:
@@ -229,21 +241,22 @@ def _bridge_gaps(tails: I64, heads: I64, predecessor: I64, centres: F64, window:
     span = window[tails] - window[earlier]
     velocity = (centres[tails] - centres[earlier]) / np.maximum(span, 1)[:, None]
 
-    heads = heads[np.argsort(window[heads], kind='stable')]
-    head_window = window[heads]
-    lo = np.searchsorted(head_window, window[tails] + 1, side='left')
-    hi = np.searchsorted(head_window, window[tails] + cfg.max_gap_frames + 1, side='right')
-    count = np.maximum(hi - lo, 0)
-    if not count.any():
-        return empty, empty
-    tail_of = np.repeat(np.arange(tails.size), count)
-    offset = np.arange(tail_of.size) - np.repeat(np.cumsum(count) - count, count)
-    head_of = np.repeat(lo, count) + offset
-    t, h = tails[tail_of], heads[head_of]
-    gap = (window[h] - window[t]).astype(np.float64)
-    predicted = centres[t] + velocity[tail_of] * gap[:, None]
-    ok = np.linalg.norm(predicted - centres[h], axis=1) <= cfg.gate_m
-    t, h, miss = t[ok], h[ok], np.linalg.norm(predicted[ok] - centres[h[ok]], axis=1)
+    # Candidates by one bulk radius query: each end continued 1 .. max_gap + 1 windows
+    # ahead, against the starts, with the window as a third coordinate spaced wider than
+    # the gate so that only starts in the predicted window can fall within it.
+    gaps = np.arange(1, cfg.max_gap_frames + 2)
+    of_tail = np.repeat(np.arange(tails.size), gaps.size)
+    gap = np.tile(gaps, tails.size)
+    spacing = 4.0 * cfg.gate_m
+    first_window = int(window.min())
+    predicted = np.column_stack([centres[tails[of_tail]] + velocity[of_tail] * gap[:, None],
+                                 (window[tails[of_tail]] + gap - first_window) * spacing])
+    starts = np.column_stack([centres[heads], (window[heads] - first_window) * spacing])
+    pairs = cKDTree(predicted).sparse_distance_matrix(cKDTree(starts), cfg.gate_m,
+                                                      output_type='ndarray')
+    t = tails[of_tail[pairs['i']]]
+    h = heads[pairs['j'].astype(np.int64)]
+    miss = pairs['v'].astype(np.float64)
     if t.size == 0:
         return empty, empty
     out_degree = np.bincount(t, minlength=window.size)

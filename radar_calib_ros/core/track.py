@@ -52,7 +52,7 @@ _INIT_SPAN_S = 0.5
 #: the heading's is 2 measurement sigmas over the initial displacement, within limits.
 _INIT_SIGMA_V, _INIT_SIGMA_YAW_RATE, _INIT_SIGMA_A = 3.0, 0.5, 3.0
 _INIT_SIGMA_YAW_MIN, _INIT_SIGMA_YAW_MAX = 0.05, 1.0
-#: Largest yaw standard deviation kept after an update [rad]. A stopped or creeping
+#: Largest yaw standard deviation after a predict or an update [rad]. A stopped or creeping
 #: object's heading is unobservable and its variance would grow without bound; once the
 #: sigma points (at +-sqrt(6) sigma) spread over more than a half turn, their wrapped
 #: residuals no longer describe the covariance and it stops being positive definite.
@@ -335,10 +335,12 @@ def batched_ukf_rts(times_s: F64, measurements: F64, lengths: I64, x0: F64, p0: 
         dt = times_s[idx] - times_s[prev]
         q[idx] = model.process_noise(x[prev], dt)
         x_prior, p_prior = _predict(x[prev], p[prev], dt, q[idx], model, wm, wc, scale)
-        x[idx], p[idx] = _update(x_prior, p_prior, measurements[idx], r, model, wm, wc,
-                                 scale, n_z)
         if model.angle is not None:
-            p[idx] = cap_angle_variance(p[idx], model.angle)
+            p_prior = cap_angle_variance(p_prior, model.angle)
+        x_post, p_post = _update(x_prior, p_prior, measurements[idx], r, model.angle, n_z)
+        if model.angle is not None:
+            p_post = cap_angle_variance(p_post, model.angle)
+        x[idx], p[idx] = x_post, p_post
 
     xs, ps = x.copy(), p.copy()
     for k in range(int(sorted_lengths[0]) - 2 if m else -1, -1, -1):
@@ -412,21 +414,20 @@ def _predict(x: F64, p: F64, dt: F64, q: F64, model: MotionModel, wm: F64, wc: F
                                 model.angle)
 
 
-def _update(x: F64, p: F64, z: F64, r: F64, model: MotionModel, wm: F64, wc: F64,
-            scale: float, n_z: int) -> tuple[F64, F64]:
-    # As filterpy: fresh sigma points of the prior, passed through h (the first n_z
-    # state entries).
-    sigmas = _sigma_points(x, p, scale, model.angle)
-    h = sigmas[..., :n_z]
-    z_pred = wm @ h
-    dz = h - z_pred[:, None, :]
-    s = _weighted_outer(wc, dz, dz) + r
-    dx = _residual(sigmas, x[:, None, :], model.angle)
-    p_xz = _weighted_outer(wc, dx, dz)
-    gain = p_xz @ np.linalg.inv(s)
-    x_new = x + (gain @ (z - z_pred)[:, :, None])[:, :, 0]
-    if model.angle is not None:
-        x_new[:, model.angle] = wrap_angle(x_new[:, model.angle])
+def _update(x: F64, p: F64, z: F64, r: F64, angle: int | None, n_z: int) -> tuple[F64, F64]:
+    """Measurement update with the first ``n_z`` state entries measured.
+
+    filterpy passes fresh sigma points of the prior through h. For a linear h they are
+    symmetric about the mean and reproduce the covariance, so the predicted measurement is
+    ``x[:n_z]``, S is ``P[:n_z, :n_z] + R`` and the cross covariance ``P[:, :n_z]``:
+    the Kalman update, exactly, as long as the angle's sigma points stay within a half
+    turn of the mean (wrapped residuals equal the offsets), which the variance cap keeps.
+    """
+    s = p[:, :n_z, :n_z] + r
+    gain = p[:, :, :n_z] @ np.linalg.inv(s)
+    x_new = x + (gain @ (z - x[:, :n_z])[:, :, None])[:, :, 0]
+    if angle is not None:
+        x_new[:, angle] = wrap_angle(x_new[:, angle])
     return x_new, p - gain @ s @ np.swapaxes(gain, -1, -2)
 
 
@@ -493,6 +494,10 @@ def smooth_track_reference(times_s: F64, centres_m: F64, cfg: TrackConfig,
         # predict() takes no Q: set it for this step's dt (and heading).
         qs[k] = ukf.Q = model.process_noise(ukf.x, dt)
         ukf.predict(dt=dt)
+        if angle is not None:
+            # the same cap on the prior; update() uses the sigma points predict() drew
+            ukf.P = cap_angle_variance(ukf.P, angle)
+            ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
         ukf.update(centres_m[k])
         if angle is not None:
             ukf.P = cap_angle_variance(ukf.P, angle)
