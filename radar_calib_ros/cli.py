@@ -120,6 +120,9 @@ def _num(value: Any) -> float:
 def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     from radar_calib_ros.result import write_result_json, write_result_yaml
     config = _load_config(args.params)
+    if args.all_radars:
+        return cmd_calibrate_all_radars(args, out)
+    _refuse_ambiguous_radar(args.bag, config)
     progress = _Progress(args.progress if args.progress is not None else sys.stderr.isatty())
     result, read_s = calibrate_bag(args.bag, config, progress=progress)
     calibration = result.calibration(config)
@@ -189,6 +192,55 @@ def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
     print(f'report written to {files.html} ({len(files.figures)} figures, '
           f'{time.perf_counter() - start:.1f} s)', file=out)
     return 0
+
+
+def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
+    """Several radar topics and no ``radar_topic``: say how to choose (exit 2)."""
+    from radar_calib_ros.errors import BagReadError
+    from radar_calib_ros.multi_radar import ambiguous_radar_topics
+    topics = ambiguous_radar_topics(bag, config)
+    if topics:
+        raise BagReadError(
+            f'the bag has {len(topics)} radar topics ({", ".join(topics)}) and the parameters '
+            'name none: calibrate them all with `radar-calib calibrate BAG --all-radars`, or '
+            'set radar_topic to one of them')
+
+
+def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
+    """``calibrate --all-radars``: every radar topic in parallel processes, one result per
+    radar frame in ``--output-dir`` plus the combined ``all_radars.yaml``."""
+    import json
+
+    from radar_calib_ros.multi_radar import calibrate_all_radars, write_outcomes
+    from radar_calib_ros.result import write_atomic
+    if getattr(args, 'report', None):
+        print('error: --report takes one radar; use `radar-calib report` per radar result',
+              file=sys.stderr)
+        return 2
+    start = time.perf_counter()
+
+    def done(outcome: Any) -> None:
+        if outcome.calibration is None:
+            print(f'{outcome.topic} ({outcome.frame_id}): error: {outcome.error}',
+                  file=sys.stderr)
+            return
+        print(f'{outcome.topic} ({outcome.frame_id}): calibrated in '
+              f'{outcome.read_s + outcome.run_s:.1f} s', file=out)
+        for line in outcome.summary:
+            print(line, file=out)
+        for advice in outcome.calibration['quality'].get('advice') or []:
+            print(f'warning: {outcome.frame_id}: {advice}', file=sys.stderr)
+
+    outcomes = calibrate_all_radars(args.bag, args.params, jobs=args.jobs, done=done)
+    written = write_outcomes(args.output_dir, outcomes)
+    if args.json:
+        write_atomic(args.json, json.dumps({o.frame_id: o.calibration for o in outcomes
+                                            if o.calibration is not None}, indent=2) + '\n')
+        written.append(Path(args.json))
+    ok = sum(o.calibration is not None for o in outcomes)
+    print(f'{ok} of {len(outcomes)} radars calibrated in {time.perf_counter() - start:.1f} s'
+          + (f'; written: {", ".join(str(p) for p in written)}' if written else ''), file=out)
+    return max(o.exit_code for o in outcomes)
 
 
 def cmd_simulate(args: argparse.Namespace, out: TextIO) -> int:
@@ -273,6 +325,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--json', help='also write the result as JSON here')
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
                    help='progress bars (default: when stderr is a terminal)')
+    p.add_argument('--all-radars', action='store_true',
+                   help='calibrate every radar topic of the recording, in parallel processes: '
+                   'one result per radar frame in --output-dir plus all_radars.yaml with '
+                   'every transform (--json then holds them all, keyed by frame)')
+    p.add_argument('--output-dir', default='radar_calibrations', metavar='DIR',
+                   help='with --all-radars: where the results go (default: %(default)s)')
+    p.add_argument('--jobs', type=int, default=None, metavar='N',
+                   help='with --all-radars: worker processes (default: one per radar, at most '
+                   'the number of CPUs)')
     p.add_argument('--report', metavar='DIR',
                    help='also write the report of this calibration run into DIR: every '
                    'figure of `radar-calib report` (on this recording) plus those only a '

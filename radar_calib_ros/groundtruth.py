@@ -16,13 +16,22 @@ from scipy.spatial.transform import Rotation
 GROUND_TRUTH_FILE = 'ground_truth.json'
 
 
-def load_ground_truth(bag_dir: str | Path) -> dict[str, Any] | None:
-    """The simulator's ``ground_truth.json`` inside a bag directory, or None."""
+def load_ground_truth(bag_dir: str | Path, radar_frame: str | None = None,
+                      ) -> dict[str, Any] | None:
+    """The simulator's ground truth inside a bag directory, or None.
+
+    ``ground_truth.json``; in a recording of several radars, ``radar_frame`` picks that
+    radar's ``ground_truth_<frame>.json`` (None when the recording has no such radar).
+    """
     path = Path(bag_dir) / GROUND_TRUTH_FILE
+    if radar_frame is not None and (Path(bag_dir) / f'ground_truth_{radar_frame}.json').is_file():
+        path = Path(bag_dir) / f'ground_truth_{radar_frame}.json'
     if not path.is_file():
         return None
     with path.open(encoding='utf-8') as fh:
         truth: dict[str, Any] = json.load(fh)
+    if radar_frame is not None and 'radars' in truth and truth.get('radar_frame') != radar_frame:
+        return None  # a multi-radar recording without that radar
     return truth
 
 

@@ -34,8 +34,8 @@ if TYPE_CHECKING:
 
     from radar_calib_ros.config import CalibConfig
 
-__all__ = ['RADAR_TYPES', 'ROLE_TYPES', 'radar_topics', 'read_recording', 'select_topics',
-           'write_bag']
+__all__ = ['RADAR_TYPES', 'ROLE_TYPES', 'radar_frame_ids', 'radar_topics', 'read_recording',
+           'select_topics', 'write_bag']
 
 #: Message types accepted per role.
 RADAR_TYPES = (msgs.POINTCLOUD2, msgs.RADARSCAN)
@@ -165,6 +165,29 @@ def radar_topics(path: str | Path) -> list[str]:
     """
     with _open_reader(Path(path)) as reader:
         return sorted({c.topic for c in reader.connections if c.msgtype in RADAR_TYPES})
+
+
+def radar_frame_ids(path: str | Path) -> dict[str, str]:
+    """The header ``frame_id`` of the first message of every radar topic of a bag.
+
+    A topic without messages, or whose first message has an empty frame id, maps to ''.
+
+    Raises
+    ------
+    BagReadError
+        The bag cannot be opened or read.
+    """
+    path = Path(path)
+    frames: dict[str, str] = {}
+    with _open_reader(path) as reader:
+        for connection in reader.connections:
+            if connection.msgtype not in RADAR_TYPES or connection.topic in frames:
+                continue
+            frames[connection.topic] = ''
+            for _, msg in _messages(reader, [connection], path):
+                frames[connection.topic] = str(msg.header.frame_id)
+                break
+    return dict(sorted(frames.items()))
 
 
 def read_recording(path: str | Path, config: CalibConfig, *,

@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import os
+import shutil
 import time
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,8 +45,8 @@ from radar_calib_ros.sim.scenario import (
 from radar_calib_ros.sim.traffic import CLASS_NAMES, TrafficLog, simulate_traffic
 from radar_calib_ros.sim.world import build_scene
 from radar_calib_ros.sim.writer import (
-    GROUND_TRUTH_FILE, PARAMS_FILE, TARGETS_FILE, write_ground_truth, write_params,
-    write_recording, write_targets)
+    GROUND_TRUTH_FILE, PARAMS_FILE, RADAR_TOPIC, TARGETS_FILE, RadarStream, ground_truth_file,
+    targets_file, write_ground_truth, write_params, write_recording, write_targets)
 from radar_calib_ros.types import Extrinsics
 
 __all__ = ['SCENARIOS', 'SCATTER_MODELS', 'DEFAULT_SCATTER_MODEL', 'CLASS_NAMES',
@@ -81,6 +83,9 @@ class SimulationSummary:
     extrinsics: Extrinsics
     frame: LocalFrame
     elapsed_s: float
+    #: a recording of several radars: the ground truth of each, by frame id (the first is
+    #: ``truth`` / ``extrinsics`` above); empty for one radar
+    radars: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
@@ -134,33 +139,32 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
     (r_mount, r_drive, r_traffic, r_scene, r_scatter, r_times, r_radar, r_gnss, r_stamps,
      r_clock) = rngs
 
-    # --- world, radar mount, traffic --------------------------------------------------
+    # --- world, radar mounts, traffic --------------------------------------------------
     frame = LocalFrame.at(spec.site.lat_deg, spec.site.lon_deg)
     junction = Junction(spec.junction)
-    mount = perturbed_mount(spec.radar, r_mount)
+    # Further radars draw from their own streams, so the first radar (and with it every
+    # single-radar recording) is the same whether or not others are simulated beside it.
+    extra_rngs = [[np.random.default_rng(s) for s in np.random.SeedSequence(
+        [seed, zlib.crc32(spec.name.encode()), 1 + k]).spawn(5)]
+        for k in range(len(spec.more_radars))]
+    mounts = [perturbed_mount(spec.radar, r_mount)] + [
+        perturbed_mount(m, g[0]) for m, g in zip(spec.more_radars, extra_rngs)]
     scene = build_scene(spec, junction, r_scene)
-    rotation, _ = mount_rotation(mount)
-    xy = np.asarray(mount.position_xy_m, float)
-    translation = np.array([xy[0], xy[1], float(scene.ground.z(xy)) + mount.height_m])
-    pose = RadarPose(rotation, translation)
     log = simulate_traffic(spec, junction, duration, r_traffic, r_drive)
     templates = build_templates(log.users, model_name, r_scatter)
-
-    # --- radar --------------------------------------------------------------------------
-    radar_model = RadarModel()
-    times = frame_times(duration, radar_model, r_times)
-    targets = simulate_radar(log, templates, scene, pose, radar_model, times, r_radar)
-    if spec.clock_offset_s is None:
-        clock_offset = float(r_clock.uniform(-0.002, 0.002))
-    else:
-        clock_offset = float(spec.clock_offset_s)
     epoch_ns = int(_EPOCH.timestamp()) * 1_000_000_000 + 1_000_000_000 * 3600 * (
         list(SCENARIOS).index(spec.name))
-    # header stamp = radar clock = GNSS time - offset, time-tagged to ~0.3 ms
-    radar_stamp_s = times - clock_offset + r_stamps.normal(0.0, 0.0003, times.size)
-    radar_stamps_ns = epoch_ns + np.round(radar_stamp_s * 1e9).astype(np.int64)
-    radar_receive_ns = epoch_ns + np.round((times + r_stamps.uniform(0.025, 0.045, times.size))
-                                           * 1e9).astype(np.int64)
+
+    # --- radars -------------------------------------------------------------------------
+    radar_model = RadarModel()
+    multi = len(mounts) > 1
+    runs = [_simulate_one_radar(
+        spec, mount, scene, log, templates, radar_model, duration, epoch_ns, *streams_k,
+        frame_id=f'radar_{k + 1}' if multi else 'radar',
+        topic=f'/radar_{k + 1}/points' if multi else RADAR_TOPIC)
+        for k, (mount, streams_k) in enumerate(zip(
+            mounts, [(r_times, r_radar, r_stamps, r_clock)] + [tuple(g[1:]) for g in extra_rngs]))]
+    first = runs[0]
 
     # --- GNSS / INS ---------------------------------------------------------------------
     gnss = simulate_gnss(log, frame, scene.ground, spec.vehicle, duration, r_gnss)
@@ -173,16 +177,30 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
 
     # --- files ----------------------------------------------------------------------------
     n_messages = write_recording(
-        out, targets=targets, radar_stamps_ns=radar_stamps_ns,
-        radar_receive_ns=radar_receive_ns, gnss=gnss, gnss_stamps_ns=gnss_stamps_ns,
+        out, targets=first.targets, radar_stamps_ns=first.stamps_ns,
+        radar_receive_ns=first.receive_ns, gnss=gnss, gnss_stamps_ns=gnss_stamps_ns,
         fix_receive_ns=fix_receive_ns, odom_receive_ns=odom_receive_ns,
-        layout=spec.point_layout, velocity_field=spec.velocity_field, storage=storage)
-    extrinsics = Extrinsics(rotation, translation, clock_offset)
-    passes = _passes(log, junction, times, targets)
-    truth = _truth(spec, seed, model_name, duration, frame, extrinsics, mount, scene.ground.z(
-        xy), passes, log, templates.skin_weight[0], gnss, times.size, targets,
-        epoch_ns, n_messages)
+        layout=spec.point_layout, velocity_field=spec.velocity_field, storage=storage,
+        radar_topic=first.topic, radar_frame=first.frame_id,
+        extra_radars=[RadarStream(r.topic, r.frame_id, r.targets, r.stamps_ns, r.receive_ns)
+                      for r in runs[1:]])
+    truths: dict[str, dict[str, Any]] = {}
+    for run in runs:
+        passes = _passes(log, junction, run.times, run.targets)
+        truth = _truth(spec, seed, model_name, duration, frame, run.extrinsics, run.mount,
+                       run.ground_z, passes, log, templates.skin_weight[0], gnss,
+                       run.times.size, run.targets, epoch_ns, n_messages)
+        if multi:
+            truth.update(radar_frame=run.frame_id, radar_topic=run.topic)
+        truths[run.frame_id] = truth
     paths = SimulationPaths(out, out / GROUND_TRUTH_FILE, out / PARAMS_FILE, out / TARGETS_FILE)
+    truth = dict(truths[first.frame_id])
+    if multi:
+        truth['radars'] = [{'radar_frame': r.frame_id, 'radar_topic': r.topic,
+                            'ground_truth': ground_truth_file(r.frame_id),
+                            'targets': targets_file(r.frame_id)} for r in runs]
+        for run in runs:
+            write_ground_truth(out / ground_truth_file(run.frame_id), truths[run.frame_id])
     write_ground_truth(paths.ground_truth, truth)
     veh = spec.vehicle
     write_params(paths.params, odometry=spec.odometry, vehicle={
@@ -190,9 +208,68 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         'rear_overhang': veh.rear_overhang, 'ref_height': veh.ref_height},
         header=f'Parameters for the simulated recording {out.name}: scenario '
                f'{spec.name!r}, seed {seed}.\nThe calibration tool may use them; it never '
-               'reads ground_truth*.')
+               'reads ground_truth*.', radar_topic=None if multi else RADAR_TOPIC)
+    for run in runs:
+        path = out / targets_file(run.frame_id) if multi else paths.targets
+        _write_run_targets(path, run, log, scene, spec, frame)
+    if multi:
+        # the first radar's origins also under the single-radar name (a link, not a copy)
+        try:
+            os.link(out / targets_file(first.frame_id), paths.targets)
+        except OSError:
+            shutil.copyfile(out / targets_file(first.frame_id), paths.targets)
+    return SimulationSummary(paths, int(first.times.size), int(first.targets.frame.size),
+                             int(truth['n_passes']), truth, first.extrinsics, frame,
+                             time.perf_counter() - started,
+                             radars={f: t for f, t in truths.items()} if multi else {})
+
+
+@dataclass(frozen=True)
+class _RadarRun:
+    """One simulated radar: mount, true calibration (local frame), frames and targets."""
+
+    frame_id: str
+    topic: str
+    mount: Any
+    extrinsics: Extrinsics
+    ground_z: float
+    times: np.ndarray
+    targets: Any
+    stamps_ns: np.ndarray
+    receive_ns: np.ndarray
+
+
+def _simulate_one_radar(spec: Scenario, mount: Any, scene: Any, log: TrafficLog,
+                        templates: Any, radar_model: RadarModel, duration: float,
+                        epoch_ns: int, r_times: np.random.Generator,
+                        r_radar: np.random.Generator, r_stamps: np.random.Generator,
+                        r_clock: np.random.Generator, *, frame_id: str,
+                        topic: str) -> _RadarRun:
+    rotation, _ = mount_rotation(mount)
+    xy = np.asarray(mount.position_xy_m, float)
+    ground_z = float(scene.ground.z(xy))
+    translation = np.array([xy[0], xy[1], ground_z + mount.height_m])
+    pose = RadarPose(rotation, translation)
+    times = frame_times(duration, radar_model, r_times)
+    targets = simulate_radar(log, templates, scene, pose, radar_model, times, r_radar)
+    if spec.clock_offset_s is None:
+        clock_offset = float(r_clock.uniform(-0.002, 0.002))
+    else:
+        clock_offset = float(spec.clock_offset_s)
+    # header stamp = radar clock = GNSS time - offset, time-tagged to ~0.3 ms
+    radar_stamp_s = times - clock_offset + r_stamps.normal(0.0, 0.0003, times.size)
+    stamps_ns = epoch_ns + np.round(radar_stamp_s * 1e9).astype(np.int64)
+    receive_ns = epoch_ns + np.round((times + r_stamps.uniform(0.025, 0.045, times.size))
+                                     * 1e9).astype(np.int64)
+    return _RadarRun(frame_id, topic, mount, Extrinsics(rotation, translation, clock_offset),
+                     ground_z, times, targets, stamps_ns, receive_ns)
+
+
+def _write_run_targets(path: Path, run: _RadarRun, log: TrafficLog, scene: Any,
+                       spec: Scenario, frame: LocalFrame) -> None:
+    targets, times = run.targets, run.times
     poses = vehicle_poses(log, scene.ground, spec.vehicle, times)
-    write_targets(paths.targets, {
+    write_targets(path, {
         'frame_index': targets.frame,
         'object_id': targets.object_id,
         'object_class': targets.object_class,
@@ -201,20 +278,18 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         'position_true_sensor_m': targets.position_true_m,
         'position_sensor_m': targets.position_m,
         'radial_velocity_true_mps': targets.radial_velocity_true_mps,
-        'frame_stamp_ns': radar_stamps_ns,
+        'frame_stamp_ns': run.stamps_ns,
         'frame_time_s': times,
         'vehicle_position_m': poses.position_m,
         'vehicle_yaw_rad': poses.yaw_rad,
         'vehicle_speed_mps': poses.speed_mps,
         'vehicle_yaw_rate_rps': poses.yaw_rate_rps,
-        'radar_rotation': rotation,
-        'radar_translation_m': translation,
+        'radar_rotation': run.extrinsics.rotation,
+        'radar_translation_m': run.extrinsics.translation_m,
         'class_names': np.asarray(CLASS_NAMES),
         'kind_names': np.asarray(KIND_NAMES),
         'local_frame': np.array([frame.lat0_deg, frame.lon0_deg, frame.epsg], float),
     })
-    return SimulationSummary(paths, int(times.size), int(targets.frame.size), len(passes),
-                             truth, extrinsics, frame, time.perf_counter() - started)
 
 
 def _passes(log: TrafficLog, junction: Junction, times: np.ndarray,

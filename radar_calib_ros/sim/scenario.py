@@ -103,6 +103,10 @@ class Scenario:
     velocity_field: str = 'velocity'
     odometry: bool = True
     clutter_density: float = 1.0
+    #: further radars on other poles, recorded in parallel with ``radar`` (a site with
+    #: several radars). Then the topics are /radar_1/points ... with frames radar_1 ...
+    #: (``radar`` is radar_1), and each radar has its own ground truth file.
+    more_radars: tuple[RadarMount, ...] = ()
 
 
 _FOUR_WAY = JunctionSpec(arm_deg=(12.0, 101.0, 192.0, 283.0), phases=((0, 2), (1, 3)))
@@ -194,6 +198,16 @@ _SCENARIO_LIST: tuple[Scenario, ...] = (
         TrafficSpec(vehicles_per_lane_h=260.0, green_s=25.0),
         vehicle=VehicleSpec(length=4.98, width=1.92, height=1.66, rear_overhang=1.10,
                             ref_height=0.36, wheelbase=2.98)),
+    Scenario(
+        'three_radars',
+        'Ulm junction with three radars on three corner poles recorded in parallel (topics '
+        '/radar_1/points ... /radar_3/points, frames radar_1 ... radar_3, own clocks), each '
+        'looking across the junction; the vehicle drives past them all.',
+        Site('Ulm', 48.42650, 9.95850, 480.0, (0.004, -0.006)), _FOUR_WAY,
+        RadarMount((15.0, 16.5), 6.5, 8.0, 0.7, (-22.0, -14.0)),
+        more_radars=(RadarMount((-16.5, -15.0), 7.0, 9.0, -0.6, (20.0, 15.0)),
+                     RadarMount((17.0, -16.0), 5.8, 7.0, 1.0, (-20.0, 16.0),
+                                yaw_offset_deg=4.0))),
 )
 
 _BY_NAME = {s.name: s for s in _SCENARIO_LIST}

@@ -8,12 +8,19 @@ in receive order (header stamp + a transport latency per sensor): ``/radar/point
 simulator knows), ``params.yaml`` (the parameters a user would write for this drive) and
 ``ground_truth_targets.npz`` (every target's origin, for the oracle baseline and tests;
 the calibration tool never reads any of these).
+
+A recording of several radars (scenario ``more_radars``) has one topic per radar,
+``/radar_1/points`` ... with frames ``radar_1`` ..., and per radar ``ground_truth_<frame>.json``
+and ``ground_truth_targets_<frame>.npz``; ``ground_truth.json`` and
+``ground_truth_targets.npz`` stay those of ``radar_1`` (so single-radar readers still work),
+the former listing every radar under ``radars``.
 """
 from __future__ import annotations
 
 import json
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,11 +41,34 @@ PARAMS_FILE = 'params.yaml'
 TARGETS_FILE = 'ground_truth_targets.npz'
 
 
+def ground_truth_file(frame_id: str) -> str:
+    """Name of one radar's ground truth in a multi-radar recording."""
+    return f'ground_truth_{frame_id}.json'
+
+
+def targets_file(frame_id: str) -> str:
+    """Name of one radar's target origins in a multi-radar recording."""
+    return f'ground_truth_targets_{frame_id}.npz'
+
+
+@dataclass(frozen=True)
+class RadarStream:
+    """One more radar of a multi-radar recording: its topic, frame id, targets (sorted by
+    frame), header stamps and receive times per frame."""
+
+    topic: str
+    frame_id: str
+    targets: RadarTargets
+    stamps_ns: np.ndarray
+    receive_ns: np.ndarray
+
+
 def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.ndarray,
                     radar_receive_ns: np.ndarray, gnss: GnssStreams,
                     gnss_stamps_ns: np.ndarray, fix_receive_ns: np.ndarray,
                     odom_receive_ns: np.ndarray | None, layout: str, velocity_field: str,
-                    storage: str) -> int:
+                    storage: str, radar_topic: str = RADAR_TOPIC, radar_frame: str = 'radar',
+                    extra_radars: Sequence[RadarStream] = ()) -> int:
     """Write the bag; returns the number of messages.
 
     Parameters
@@ -47,18 +77,29 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
         Sorted by frame; frame f is published with stamp ``radar_stamps_ns[f]``.
     odom_receive_ns : ndarray or None
         None leaves the Odometry topic out.
+    radar_topic, radar_frame : str
+        Topic and header frame id of the (first) radar.
+    extra_radars : sequence of RadarStream
+        Further radars recorded in parallel, each on its own topic.
     """
     store = msgs.get_typestore()
-    n_frames = radar_stamps_ns.size
-    bounds = np.searchsorted(targets.frame, np.arange(n_frames + 1))
-    positions = targets.position_m.astype(np.float32, copy=False)
-    velocity = targets.radial_velocity_mps.astype(np.float32, copy=False)
-    rcs = targets.rcs_dbsm.astype(np.float32, copy=False)
-    # (receive time, topic rank, index), merged into one receive-ordered stream
-    keys = [np.column_stack([radar_receive_ns, np.zeros(n_frames, np.int64),
-                             np.arange(n_frames)]),
-            np.column_stack([fix_receive_ns, np.ones(fix_receive_ns.size, np.int64),
-                             np.arange(fix_receive_ns.size)])]
+    radars = [RadarStream(radar_topic, radar_frame, targets, radar_stamps_ns,
+                          radar_receive_ns), *extra_radars]
+    # topic ranks: 0 fix, 1 odometry, 2 + k radar k
+    packed = []
+    for radar in radars:
+        n = radar.stamps_ns.size
+        packed.append((np.searchsorted(radar.targets.frame, np.arange(n + 1)),
+                       radar.targets.position_m.astype(np.float32, copy=False),
+                       radar.targets.radial_velocity_mps.astype(np.float32, copy=False),
+                       radar.targets.rcs_dbsm.astype(np.float32, copy=False)))
+    # (receive time, topic rank, index), merged into one receive-ordered stream; a radar
+    # frame sorts before a fix received at the same nanosecond, as it always has
+    keys = [np.column_stack([r.receive_ns, np.full(r.stamps_ns.size, -len(radars) + k,
+                                                   np.int64), np.arange(r.stamps_ns.size)])
+            for k, r in enumerate(radars)]
+    keys.append(np.column_stack([fix_receive_ns, np.ones(fix_receive_ns.size, np.int64),
+                                 np.arange(fix_receive_ns.size)]))
     if odom_receive_ns is not None:
         keys.append(np.column_stack([odom_receive_ns,
                                      np.full(odom_receive_ns.size, 2, np.int64),
@@ -68,13 +109,15 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
 
     def messages() -> Iterator[tuple[str, str, int, object]]:
         for receive, topic, i in order.tolist():
-            if topic == 0:
+            if topic < 0:
+                radar = radars[topic + len(radars)]
+                bounds, positions, velocity, rcs = packed[topic + len(radars)]
                 a, b = bounds[i], bounds[i + 1]
                 msg = msgs.encode_pointcloud(
-                    store, int(radar_stamps_ns[i]), 'radar', positions[a:b], velocity[a:b],
-                    layout=layout, dtype=np.float32, velocity_field=velocity_field,
-                    extra_fields={'rcs': rcs[a:b]})
-                yield RADAR_TOPIC, msgs.POINTCLOUD2, receive, msg
+                    store, int(radar.stamps_ns[i]), radar.frame_id, positions[a:b],
+                    velocity[a:b], layout=layout, dtype=np.float32,
+                    velocity_field=velocity_field, extra_fields={'rcs': rcs[a:b]})
+                yield radar.topic, msgs.POINTCLOUD2, receive, msg
             elif topic == 1:
                 msg = msgs.encode_navsatfix(
                     store, int(gnss_stamps_ns[i]), 'gnss', float(gnss.lat_deg[i]),
@@ -97,16 +140,22 @@ def write_ground_truth(path: Path, truth: Mapping[str, Any]) -> None:
 
 
 def write_params(path: Path, *, odometry: bool, vehicle: Mapping[str, float],
-                 header: str) -> None:
-    """``params.yaml``: topics and the calibration vehicle (a ROS 2 parameters file)."""
+                 header: str, radar_topic: str | None = RADAR_TOPIC) -> None:
+    """``params.yaml``: topics and the calibration vehicle (a ROS 2 parameters file).
+
+    ``radar_topic`` None (a recording of several radars) names no radar topic or frame:
+    the user picks one (``radar_topic``) or calibrates them all (``--all-radars``).
+    """
     params: dict[str, Any] = {
-        'radar_topic': RADAR_TOPIC,
+        'radar_topic': radar_topic,
         'navsat_topic': NAVSAT_TOPIC,
         # an explicitly empty topic turns the role off: navsat_only has no Odometry
         'odom_topic': ODOM_TOPIC if odometry else '',
         'radar': {'frame_id': 'radar'},
         'vehicle': {**{k: float(v) for k, v in vehicle.items()}, 'odom_is_utm': True},
     }
+    if radar_topic is None:
+        del params['radar_topic'], params['radar']
     text = yaml.safe_dump({'/**': {'ros__parameters': params}}, sort_keys=False)
     write_atomic(path, ''.join(f'# {line}\n' for line in header.splitlines()) + text)
 

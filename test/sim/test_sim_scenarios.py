@@ -15,13 +15,14 @@ from radar_calib_ros.sim.scenario import get_scenario, mount_rotation, perturbed
 from sim_truth import load
 
 
-def _topics_and_fields(bag: Path) -> tuple[dict[str, int], list[str]]:
+def _topics_and_fields(bag: Path, topic: str = '/radar/points',
+                       frame_id: str = 'radar') -> tuple[dict[str, int], list[str]]:
     with AnyReader([bag], default_typestore=msgs.get_typestore()) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-        radar = [c for c in reader.connections if c.topic == '/radar/points']
+        radar = [c for c in reader.connections if c.topic == topic]
         _, _, raw = next(reader.messages(connections=radar))
         cloud = reader.deserialize(raw, radar[0].msgtype)
-        assert cloud.header.frame_id == 'radar'
+        assert cloud.header.frame_id == frame_id
         return counts, [f.name for f in cloud.fields]
 
 
@@ -30,8 +31,13 @@ def test_scenario_runs(name: str, tmp_path: Path) -> None:
     sim = simulate(tmp_path / name, seed=1, duration_s=12.0, scenario=name)
     truth = sim.truth
     spec = get_scenario(name)
-    counts, fields = _topics_and_fields(sim.paths.bag)
-    assert counts['/radar/points'] == sim.n_frames > 150
+    # a recording of several radars: radar_1 on /radar_1/points is the first
+    topic = truth.get('radar_topic', '/radar/points')
+    counts, fields = _topics_and_fields(sim.paths.bag, topic, truth['radar_frame'])
+    assert counts[topic] == sim.n_frames > 150
+    listed = truth.get('radars', [])
+    assert len(listed) == (1 + len(spec.more_radars) if spec.more_radars else 0)
+    assert all(counts[r['radar_topic']] > 150 for r in listed)
     assert counts['/vehicle/fix'] == 601
     assert ('/vehicle/odom' in counts) == spec.odometry
     if spec.point_layout == 'spherical':

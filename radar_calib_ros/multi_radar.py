@@ -1,0 +1,212 @@
+"""Every radar of one recording: ``radar-calib calibrate BAG --all-radars``.
+
+A test site records all its radars in parallel while the calibration vehicle drives past
+them all. Each radar topic is calibrated on its own (the same ``run_calibration`` as a single
+radar, the topic chosen as if ``radar_topic`` named it), in parallel processes: the stages
+are numpy-bound and hold the GIL between array operations, so threads would not overlap.
+
+Each radar's result is named by its frame: the header ``frame_id`` of the topic's first
+message (the frame other nodes know it by), or a name made from the topic when that is
+empty or taken twice.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.errors import BagReadError, CalibrationError, exit_code
+
+#: File name of the combined parameters file in the output directory.
+COMBINED_FILE = 'all_radars.yaml'
+#: Keys of a calibration that describe the transform (the combined file holds only these).
+TRANSFORM_KEYS = ('world_frame', 'radar_frame', 'epsg', 'translation', 'quaternion_xyzw',
+                  'rpy_deg', 'latitude', 'longitude', 'altitude', 'boresight_azimuth_deg',
+                  'stamp')
+
+
+@dataclass(frozen=True)
+class RadarOutcome:
+    """One radar's calibration run.
+
+    calibration : the contract's result mapping, or None when the run failed; error: the
+    reason (one line) and exit_code its code (0 ok, 1 cannot be calibrated, 2 bad input);
+    summary : the one-screen summary lines; read_s / run_s : bag reading and pipeline time.
+    """
+
+    topic: str
+    frame_id: str
+    calibration: dict[str, Any] | None
+    error: str | None
+    exit_code: int
+    summary: tuple[str, ...] = ()
+    read_s: float = 0.0
+    run_s: float = 0.0
+
+
+def _same_topic(a: str, b: str) -> bool:
+    return a.lstrip('/') == b.lstrip('/')
+
+
+def ambiguous_radar_topics(bag: str | Path, config: CalibConfig) -> list[str]:
+    """The bag's radar topics when there are several and the parameters pick none, else [].
+
+    Raises
+    ------
+    BagReadError
+        The bag cannot be opened.
+    """
+    from radar_calib_ros.io.bag import radar_topics
+    if 'radar_topic' in config.explicit:
+        return []
+    topics = radar_topics(bag)
+    if len(topics) > 1 and not any(_same_topic(t, config.radar_topic) for t in topics):
+        return topics
+    return []
+
+
+def radar_frames(bag: str | Path) -> dict[str, str]:
+    """Radar topic -> the frame its result is named by (unique, file-name safe).
+
+    Raises
+    ------
+    BagReadError
+        The bag cannot be opened, or holds no radar topic.
+    """
+    from radar_calib_ros.io.bag import radar_frame_ids
+    found = radar_frame_ids(bag)
+    if not found:
+        raise BagReadError(f'no radar topic (PointCloud2 or RadarScan) in {str(bag)!r}')
+    names: dict[str, str] = {}
+    for topic, frame in found.items():
+        name = _safe(frame)
+        if not name or name in names.values() or list(found.values()).count(frame) > 1:
+            name = _safe(topic)
+        names[topic] = name
+    return names
+
+
+def _safe(name: str) -> str:
+    """A frame or topic name as a file name: '/' and other separators become '_'."""
+    return ''.join(c if c.isalnum() or c in '-_.' else '_' for c in name.strip('/')).strip('.')
+
+
+def calibrate_topic(bag: str, params: str | None, topic: str, frame_id: str) -> RadarOutcome:
+    """Calibrate one radar topic of a bag (runs in a worker process; never raises a
+    CalibrationError, it is returned as the outcome's error)."""
+    from radar_calib_ros.cli import summary_lines
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.pipeline import run_calibration
+    try:
+        config = CalibConfig.from_file(params) if params else CalibConfig()
+        config = dataclasses.replace(config, radar=dataclasses.replace(config.radar,
+                                                                       frame_id=frame_id))
+        start = time.perf_counter()
+        recording = read_recording(bag, config, radar_topic=topic)
+        read_s = time.perf_counter() - start
+        result = run_calibration(recording, config)
+        run_s = time.perf_counter() - start - read_s
+    except CalibrationError as err:
+        return RadarOutcome(topic, frame_id, None, str(err), exit_code(err))
+    calibration = result.calibration(config)
+    return RadarOutcome(topic, frame_id, calibration, None, 0,
+                        tuple(summary_lines(calibration, result.stage_times_s, read_s)),
+                        read_s, run_s)
+
+
+def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
+                         jobs: int | None = None,
+                         done: Callable[[RadarOutcome], None] | None = None,
+                         ) -> list[RadarOutcome]:
+    """Calibrate every radar topic of a bag, in parallel processes.
+
+    Parameters
+    ----------
+    bag : str or Path
+        A rosbag2 directory.
+    params : str, optional
+        ROS 2 parameters file for every radar (its ``radar_topic`` and ``radar.frame_id``
+        are overridden per topic).
+    jobs : int, optional
+        Worker processes; default: one per radar, at most the number of CPUs.
+    done : callable(RadarOutcome), optional
+        Called as each radar finishes (in completion order).
+
+    Returns
+    -------
+    list of RadarOutcome
+        One per radar topic, in topic order.
+
+    Raises
+    ------
+    BagReadError
+        The bag cannot be opened or has no radar topic.
+    ConfigError
+        The parameters file is invalid (checked once, before any worker starts).
+    """
+    if params:
+        CalibConfig.from_file(params)
+    frames = radar_frames(bag)
+    workers = max(1, min(len(frames), jobs or os.cpu_count() or 1))
+    outcomes: dict[str, RadarOutcome] = {}
+    if workers == 1:
+        for topic, frame in frames.items():
+            outcomes[topic] = calibrate_topic(str(bag), params, topic, frame)
+            if done is not None:
+                done(outcomes[topic])
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = [pool.submit(calibrate_topic, str(bag), params, topic, frame)
+                       for topic, frame in frames.items()]
+            for future in as_completed(futures):
+                outcome = future.result()
+                outcomes[outcome.topic] = outcome
+                if done is not None:
+                    done(outcome)
+    return [outcomes[t] for t in frames]
+
+
+def combined_parameters(calibrations: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """One ROS 2 parameters file with every radar's transform, ready for ``/tf_static``.
+
+    ``radar_frames`` lists the child frames; ``calibrations.<frame>`` holds each one's
+    transform keys (parent ``world_frame``, child ``radar_frame``, ``translation``,
+    ``quaternion_xyzw``, ...), as in a single result file without the quality figures
+    (those stay in the per-radar files).
+    """
+    entries = {frame: {k: cal[k] for k in TRANSFORM_KEYS if k in cal}
+               for frame, cal in calibrations.items()}
+    return {'/**': {'ros__parameters': {'radar_frames': list(entries),
+                                        'calibrations': entries}}}
+
+
+def write_outcomes(out_dir: str | Path, outcomes: Sequence[RadarOutcome]) -> list[Path]:
+    """Write ``<frame>.yaml`` per calibrated radar and the combined ``all_radars.yaml``;
+    returns the files written (the combined one last, only when a radar succeeded)."""
+    import yaml
+
+    from radar_calib_ros.result import write_atomic, write_result_yaml
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    calibrations: dict[str, dict[str, Any]] = {}
+    for outcome in outcomes:
+        if outcome.calibration is None:
+            continue
+        path = out / f'{outcome.frame_id}.yaml'
+        write_result_yaml(path, outcome.calibration)
+        written.append(path)
+        calibrations[outcome.frame_id] = outcome.calibration
+    if calibrations:
+        path = out / COMBINED_FILE
+        text = yaml.safe_dump(combined_parameters(calibrations), sort_keys=False)
+        write_atomic(path, '# every radar of the recording, world -> radar (see radar_frames)\n'
+                     + text)
+        written.append(path)
+    return written

@@ -1,0 +1,130 @@
+"""Several radars in one recording: the simulator's 'three_radars' scenario and
+``radar-calib calibrate --all-radars`` (CONTRACT.md "The offline tool")."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from radar_calib_ros.cli import main
+from radar_calib_ros.groundtruth import calibration_errors, load_ground_truth
+from radar_calib_ros.io.bag import radar_frame_ids
+from radar_calib_ros.multi_radar import TRANSFORM_KEYS, combined_parameters, radar_frames
+from radar_calib_ros.result import load_result
+from radar_calib_ros.sim import SimulationSummary, simulate
+
+FRAMES = ['radar_1', 'radar_2', 'radar_3']
+
+
+@pytest.fixture(scope='module')
+def three(tmp_path_factory: pytest.TempPathFactory) -> tuple[SimulationSummary, Path]:
+    """150 s past three radars (about five passes) and a parameters file that accepts two
+    agreeing passes, so that each radar calibrates from this short drive."""
+    root = tmp_path_factory.mktemp('three')
+    sim = simulate(root / 'bag', seed=5, duration_s=150.0, scenario='three_radars')
+    params = yaml.safe_load(sim.paths.params.read_text())
+    params['/**']['ros__parameters']['hypotheses'] = {'min_passes': 2}
+    path = root / 'params_two_passes.yaml'
+    path.write_text(yaml.safe_dump(params))
+    return sim, path
+
+
+def test_recording_holds_three_radars_with_their_own_truth(
+        three: tuple[SimulationSummary, Path]) -> None:
+    sim, _ = three
+    bag = sim.paths.bag
+    assert radar_frame_ids(bag) == {f'/{f}/points': f for f in FRAMES}
+    assert list(sim.radars) == FRAMES
+    truths = {f: load_ground_truth(bag, f) for f in FRAMES}
+    assert all(t is not None and t['radar_frame'] == f for f, t in truths.items())
+    # ground_truth.json stays a valid single-radar truth (radar_1's) listing all radars
+    main_truth = load_ground_truth(bag)
+    assert main_truth is not None
+    assert main_truth['translation'] == truths['radar_1']['translation']
+    assert [r['radar_frame'] for r in main_truth['radars']] == FRAMES
+    assert load_ground_truth(bag, 'radar_9') is None
+    positions = np.array([truths[f]['translation'] for f in FRAMES])
+    spacing = np.linalg.norm(positions[:, None, :2] - positions[None, :, :2], axis=-1)
+    assert spacing[np.triu_indices(3, 1)].min() > 20.0      # three different poles
+    for frame in FRAMES:
+        with np.load(bag / f'ground_truth_targets_{frame}.npz') as npz:
+            assert npz['is_calibration_vehicle'].sum() > 1000
+    # no radar named in the parameters: the user must choose
+    text = sim.paths.params.read_text()
+    assert 'radar_topic' not in text and 'frame_id' not in text
+
+
+def test_plain_calibrate_refuses_several_radars(three: tuple[SimulationSummary, Path],
+                                                tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    sim, params = three
+    out = tmp_path / 'result.yaml'
+    code = main(['calibrate', str(sim.paths.bag), '--params', str(params), '--output',
+                 str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert '--all-radars' in err and 'radar_topic' in err
+    assert all(f'/{f}/points' in err for f in FRAMES)
+    assert not out.exists()
+
+
+def test_all_radars_calibrates_each_radar(three: tuple[SimulationSummary, Path],
+                                          tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    sim, params = three
+    out_dir = tmp_path / 'calibrations'
+    code = main(['calibrate', str(sim.paths.bag), '--params', str(params), '--all-radars',
+                 '--output-dir', str(out_dir), '--json', str(tmp_path / 'all.json'),
+                 '--jobs', '2'])
+    stdout = capsys.readouterr().out
+    assert code == 0, stdout
+    assert '3 of 3 radars calibrated' in stdout
+    assert sorted(p.name for p in out_dir.iterdir()) == [
+        'all_radars.yaml', 'radar_1.yaml', 'radar_2.yaml', 'radar_3.yaml']
+    combined = yaml.safe_load((out_dir / 'all_radars.yaml').read_text())
+    params_ = combined['/**']['ros__parameters']
+    assert params_['radar_frames'] == FRAMES
+    as_json = json.loads((tmp_path / 'all.json').read_text())
+    assert sorted(as_json) == FRAMES
+    for frame in FRAMES:
+        result = load_result(out_dir / f'{frame}.yaml')
+        assert result['radar_frame'] == frame and result['world_frame'] == 'utm'
+        entry = params_['calibrations'][frame]
+        assert set(entry) == set(TRANSFORM_KEYS)
+        assert entry['translation'] == pytest.approx(result['translation'])
+        assert entry['quaternion_xyzw'] == pytest.approx(result['quaternion_xyzw'])
+        assert as_json[frame]['translation'] == pytest.approx(result['translation'])
+        # each result is its own radar's: decimetres from its truth, metres from the others
+        errors = {f: calibration_errors(result, load_ground_truth(sim.paths.bag, f))
+                  for f in FRAMES}
+        assert errors[frame]['horizontal_m'] < 0.5
+        assert errors[frame]['rotation_deg'] < 1.5
+        assert min(e['horizontal_m'] for f, e in errors.items() if f != frame) > 20.0
+
+
+def test_all_radars_bad_input_exits_2(tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(['calibrate', str(tmp_path / 'missing_bag'), '--all-radars', '--output-dir',
+                 str(tmp_path / 'out')])
+    assert code == 2
+    assert capsys.readouterr().err.startswith('error: ')
+    assert not (tmp_path / 'out').exists()
+
+
+def test_radar_frames_are_unique_file_names(monkeypatch: pytest.MonkeyPatch) -> None:
+    found = {'/a/points': 'radar', '/b/points': 'radar', '/c/points': '', '/d/scan': 'x/y'}
+    monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
+    names = radar_frames('unused')
+    assert names == {'/a/points': 'a_points', '/b/points': 'b_points', '/c/points': 'c_points',
+                     '/d/scan': 'x_y'}
+
+
+def test_combined_parameters_hold_only_transforms() -> None:
+    cal = {k: k for k in TRANSFORM_KEYS} | {'quality': {'inlier_ratio': 0.9}}
+    doc = combined_parameters({'r1': cal, 'r2': cal})
+    params = doc['/**']['ros__parameters']
+    assert params['radar_frames'] == ['r1', 'r2']
+    assert params['calibrations']['r1'] == {k: k for k in TRANSFORM_KEYS}
