@@ -1,23 +1,43 @@
 """Stage 4: the ground plane, and from it the sensor's roll and pitch (R_alpha_beta).
 
-The paper merges the targets of the whole recording, keeps the dense regions (where the
-lanes are: at least ``density_fraction`` of the highest neighbour count within
-``radius_m``) and takes the normal of the remaining cloud from an SVD. Moving targets lie
-on vehicles over the road, between the road surface and the vehicles' roofs, so their
-plane is parallel to the road; the mean reflection height sits in ``offset_m``, not in
-the normal. Stationary targets are kept out by default (``ground.targets = moving``):
-facades, poles and signs are dense too but are not on the road.
+The paper merges the targets of the whole recording, keeps the dense regions (at least
+``density_fraction`` of the highest neighbour count within ``radius_m``: "the most occupied
+spaces right above the lanes") and takes the normal of the remaining cloud from an SVD.
+Moving targets lie on vehicles over the road, between the road surface and the roofs, so
+their plane is parallel to the road; the mean reflection height sits in ``offset_m``, not
+in the normal. Three changes, each measured on synthetic scenes with the radar's noise
+(elevation error 1-2 deg, i.e. metres at range):
 
-Two details beyond the paper:
+* The neighbours are counted in the plane of the cloud (bird's-eye view), not in 3D: in 3D
+  a target is dense where its own elevation error happens to be small, so dropping the
+  sparse ones selects on the error and tilts the plane (0.04-0.15 deg).
+* The SVD (total least squares) only starts the fit: it assumes the same error in every
+  direction and reads the elevation noise as a steeper plane (12 % of the roll with lanes
+  over +-9 m). The fit is a weighted least squares of the height over the plane, per-cell
+  weights from the residual scatter (it grows with range), with the bias of the errors in
+  the plane coordinates removed, inside a wide residual gate (``_robust_plane``).
+* Long recordings are subsampled evenly to ``_MAX_FIT_TARGETS`` targets (the neighbour
+  query over millions of targets would take seconds; 2 x 10^5 pin the normal to ~0.02
+  deg).
 
-* The SVD is repeated with weights and a residual gate (``_robust_plane``): the
-  elevation noise grows with range, so near targets carry most of the information, and
-  stray clutter and multipath ghosts far outside the scatter must not tilt the plane.
-* On long recordings the plane is fitted to at most ``_MAX_FIT_TARGETS`` evenly spaced
-  targets, and their density is counted against at most ``_DENSITY_REFERENCES`` of them:
-  the threshold is relative to the maximum, so the subsample ranks the regions alike, and
-  10^5 targets already pin the normal to about 0.01 deg, while the neighbour query over
-  millions of targets would take seconds.
+Which targets (``ground.targets``): moving ones. Measured on the simulator (angle between
+the fitted normal and the true road normal, in the sensor frame; ``all`` = every target):
+
+    scenario (duration)          all     moving, min_speed_kmh = 0.1 / 0.5 / 1.0
+    baseline (15 min)            1.38    1.10 / 0.31 / 0.32 deg
+    dense_traffic (5 min)        3.21    3.20 / 0.07 / 0.11
+    low_mount (5 min)            2.94    4.20 / 0.44 / 0.47
+    mid_block (5 min)            2.53    1.63 / 0.42 / 0.02
+
+Facades, poles and parked cars are dense too but are not on the road. At the paper's 0.1
+km/h, though, a radar with 0.05-0.1 m/s of velocity noise lets ~70 % of that clutter pass
+as "moving", and the plane is as bad as with every target. What remains at 0.5 km/h is
+physical, not the estimator: fitted to the true (noise-free) reflection points of the
+baseline's road users the plane is still 0.5 deg off, because where a vehicle reflects
+depends on the look-down angle (higher parts near the radar, where the elevation field of
+view cuts the low ones). Roll and pitch from here are a starting value that the later
+stages refine. The plane is the road's, which is not level where the road has a gradient
+(0.2-0.5 deg in the simulated sites).
 """
 from __future__ import annotations
 
