@@ -57,6 +57,9 @@ _INIT_SIGMA_YAW_MIN, _INIT_SIGMA_YAW_MAX = 0.05, 1.0
 #: sigma points (at +-sqrt(6) sigma) spread over more than a half turn, their wrapped
 #: residuals no longer describe the covariance and it stops being positive definite.
 _MAX_SIGMA_YAW = 1.0
+#: Tracks longer than core + 2 overlaps are smoothed in overlapping segments
+#: (see ``_segments``) [measurements].
+_SEGMENT_CORE, _SEGMENT_OVERLAP = 512, 256
 
 
 def track_clusters(recording: Recording, tracked: TrackedTargets, ground: GroundPlane,
@@ -279,13 +282,56 @@ def smooth_tracks(times_s: F64, centres_m: F64, lengths: I64,
         Smoothed states, yaw wrapped to [-pi, pi).
     covariances : ndarray of shape (m, 6, 6)
     """
+    lengths = np.asarray(lengths, dtype=np.int64)
     starts = np.cumsum(lengths) - lengths
-    init = [initial_state(times_s[lo:lo + n], centres_m[lo:lo + n], cfg)
-            for lo, n in zip(starts.tolist(), np.asarray(lengths).tolist())]
+    # Segments: (first measurement, length, where its kept core starts in it, core length).
+    seg_first, seg_len, core_at, core_len = _segments(starts, lengths)
+    pick = np.concatenate([np.arange(a, a + n) for a, n in zip(seg_first.tolist(),
+                                                              seg_len.tolist())])
+    seg_times, seg_centres = times_s[pick], centres_m[pick]
+    seg_starts = np.cumsum(seg_len) - seg_len
+    init = [initial_state(seg_times[lo:lo + n], seg_centres[lo:lo + n], cfg)
+            for lo, n in zip(seg_starts.tolist(), seg_len.tolist())]
     x0 = np.array([m for m, _ in init]).reshape(-1, DIM_X)
     p0 = np.array([c for _, c in init]).reshape(-1, DIM_X, DIM_X)
     r = np.eye(2) * cfg.measurement_sigma_m**2
-    return batched_ukf_rts(times_s, centres_m, lengths, x0, p0, r, ctra_model(cfg))
+    seg_x, seg_p = batched_ukf_rts(seg_times, seg_centres, seg_len, x0, p0, r, ctra_model(cfg))
+    if seg_len.size == lengths.size:
+        return seg_x, seg_p
+    keep = np.concatenate([np.arange(lo + a, lo + a + n) for lo, a, n in zip(
+        seg_starts.tolist(), core_at.tolist(), core_len.tolist())])
+    return seg_x[keep], seg_p[keep]
+
+
+def _segments(starts: I64, lengths: I64) -> tuple[I64, I64, I64, I64]:
+    """Cut tracks longer than ``_SEGMENT_CORE + 2 * _SEGMENT_OVERLAP`` into overlapping
+    segments.
+
+    The batched filter takes one step per measurement of the longest track, each step
+    costing the same fixed overhead however few tracks remain: a cluster of stationary
+    clutter followed for minutes would take seconds alone. A segment is smoothed on its
+    own with ``_SEGMENT_OVERLAP`` measurements either side of the core it contributes;
+    for a moving object the smoother forgets its start within that margin (positions
+    agree with the whole-track smoothing to ~1e-9 m at 256 steps, 1e-5 m at 128).
+    """
+    long_enough = _SEGMENT_CORE + 2 * _SEGMENT_OVERLAP
+    firsts, lens, core_at, core_len = [], [], [], []
+    for start, n in zip(starts.tolist(), lengths.tolist()):
+        if n <= long_enough:
+            firsts.append(start)
+            lens.append(n)
+            core_at.append(0)
+            core_len.append(n)
+            continue
+        for core in range(0, n, _SEGMENT_CORE):
+            lo = max(0, core - _SEGMENT_OVERLAP)
+            hi = min(n, core + _SEGMENT_CORE + _SEGMENT_OVERLAP)
+            firsts.append(start + lo)
+            lens.append(hi - lo)
+            core_at.append(core - lo)
+            core_len.append(min(_SEGMENT_CORE, n - core))
+    return (np.asarray(firsts, np.int64), np.asarray(lens, np.int64),
+            np.asarray(core_at, np.int64), np.asarray(core_len, np.int64))
 
 
 def batched_ukf_rts(times_s: F64, measurements: F64, lengths: I64, x0: F64, p0: F64,

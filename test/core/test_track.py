@@ -216,3 +216,29 @@ def test_track_clusters_one_measurement_per_frame_in_the_levelled_view() -> None
     assert np.median(np.cos(tracks[0].states[:, 2] - math.pi / 2)) > 0.99
     assert track.track_clusters(recording, TrackedTargets(np.arange(3), -np.ones(3, np.int64)),
                                 ground, CFG) == []
+
+
+def test_long_tracks_smoothed_in_segments_match_the_whole_track() -> None:
+    rng = np.random.default_rng(6)
+    n = 1400
+    times = np.concatenate([[0.0], np.cumsum(rng.uniform(0.06, 0.075, n - 1))])
+    state, truth = np.array([0.0, 0.0, 0.3, 8.0, 0.0, 0.0]), []
+    for k in range(n):
+        state = state.copy()
+        state[4], state[5] = 0.3 * math.sin(times[k] / 5.0), 0.5 * math.cos(times[k] / 3.0)
+        truth.append(state)
+        if k + 1 < n:
+            state = track.ctra_transition(state, times[k + 1] - times[k])
+    centres = np.array(truth)[:, :2] + rng.normal(0.0, 0.7, (n, 2))
+    short_t, short_z = times[:300], centres[:300]
+    states, covariances = track.smooth_tracks(
+        np.concatenate([times, short_t]), np.concatenate([centres, short_z]),
+        np.array([n, 300]), CFG)
+    assert states.shape == (n + 300, 6) and covariances.shape == (n + 300, 6, 6)
+    x0, p0 = track.initial_state(times, centres, CFG)
+    whole, _ = track.batched_ukf_rts(times, centres, np.array([n]), x0[None], p0[None],
+                                     np.eye(2) * CFG.measurement_sigma_m**2,
+                                     track.ctra_model(CFG))
+    np.testing.assert_allclose(states[:n, :2], whole[:, :2], atol=1e-6)
+    short, _ = track.smooth_tracks(short_t, short_z, np.array([300]), CFG)
+    np.testing.assert_allclose(states[n:], short, atol=1e-8)
