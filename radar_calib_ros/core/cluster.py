@@ -36,8 +36,9 @@ from radar_calib_ros.config import ClusterConfig
 from radar_calib_ros.types import F64, I64, Targets
 
 #: Windows clustered per bulk query: bounds the memory of the pair and edge arrays
-#: (about 50 moving targets per frame give some 10^5 edges per 1000 windows).
-_CHUNK_FRAMES = 1000
+#: (with 160 "moving" targets per frame, static clutter included, 500 windows give some
+#: 2.5 million candidate pairs).
+_CHUNK_FRAMES = 500
 
 
 @dataclass(frozen=True, slots=True)

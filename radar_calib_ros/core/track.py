@@ -369,9 +369,12 @@ def batched_ukf_rts(times_s: F64, measurements: F64, lengths: I64, x0: F64, p0: 
     running = np.searchsorted(-sorted_lengths, -np.arange(int(sorted_lengths[0]) + 1),
                               side='left') if m else np.zeros(1, np.int64)
 
+    # One state and one covariance array, filtered forward, then smoothed in place going
+    # backward (step k needs the filtered k and the smoothed k + 1): on a long recording
+    # they are the biggest arrays of the stage, so there are no copies and no stored
+    # process noise (it is recomputed from the same filtered state).
     x = np.empty((m, n_x))
     p = np.empty((m, n_x, n_x))
-    q = np.zeros((m, n_x, n_x))
     first = starts
     x[first] = x0[by_length]
     p[first] = p0[by_length]
@@ -379,8 +382,8 @@ def batched_ukf_rts(times_s: F64, measurements: F64, lengths: I64, x0: F64, p0: 
         idx = starts[:running[k]] + k
         prev = idx - 1
         dt = times_s[idx] - times_s[prev]
-        q[idx] = model.process_noise(x[prev], dt)
-        x_prior, p_prior = _predict(x[prev], p[prev], dt, q[idx], model, wm, wc, scale)
+        x_prior, p_prior = _predict(x[prev], p[prev], dt, model.process_noise(x[prev], dt),
+                                    model, wm, wc, scale)
         if model.angle is not None:
             p_prior = cap_angle_variance(p_prior, model.angle)
         x_post, p_post = _update(x_prior, p_prior, measurements[idx], r, model.angle, n_z)
@@ -388,23 +391,24 @@ def batched_ukf_rts(times_s: F64, measurements: F64, lengths: I64, x0: F64, p0: 
             p_post = cap_angle_variance(p_post, model.angle)
         x[idx], p[idx] = x_post, p_post
 
-    xs, ps = x.copy(), p.copy()
     for k in range(int(sorted_lengths[0]) - 2 if m else -1, -1, -1):
         idx = starts[:running[k + 1]] + k
         nxt = idx + 1
         dt = times_s[nxt] - times_s[idx]
-        sigmas = _sigma_points(x[idx], p[idx], scale, model.angle)
+        x_f, p_f = x[idx], p[idx]
+        sigmas = _sigma_points(x_f, p_f, scale, model.angle)
         sigmas_f = model.transition(sigmas, dt[:, None])
-        x_b, p_b = _unscented_transform(sigmas_f, wm, wc, q[nxt], model.angle)
-        dx = _residual(sigmas, x[idx][:, None, :], model.angle)
+        x_b, p_b = _unscented_transform(sigmas_f, wm, wc, model.process_noise(x_f, dt),
+                                        model.angle)
+        dx = _residual(sigmas, x_f[:, None, :], model.angle)
         db = _residual(sigmas_f, x_b[:, None, :], model.angle)
-        p_xb = _weighted_outer(wc, dx, db)
-        gain = p_xb @ np.linalg.inv(p_b)
-        xs[idx] = x[idx] + (gain @ _residual(xs[nxt], x_b, model.angle)[:, :, None])[:, :, 0]
+        gain = _weighted_outer(wc, dx, db) @ np.linalg.inv(p_b)
+        x_s = x_f + (gain @ _residual(x[nxt], x_b, model.angle)[:, :, None])[:, :, 0]
         if model.angle is not None:
-            xs[idx, model.angle] = wrap_angle(xs[idx, model.angle])
-        ps[idx] = p[idx] + gain @ (ps[nxt] - p_b) @ np.swapaxes(gain, -1, -2)
-    return xs, ps
+            x_s[:, model.angle] = wrap_angle(x_s[:, model.angle])
+        p[idx] = p_f + gain @ (p[nxt] - p_b) @ np.swapaxes(gain, -1, -2)
+        x[idx] = x_s
+    return x, p
 
 
 def cap_angle_variance(p: F64, angle: int, max_sigma: float = _MAX_SIGMA_YAW) -> F64:
