@@ -182,9 +182,11 @@ class RefineConfig:
     azimuth_sigma_deg: float = _p(0.3, 'radar azimuth noise (1 sigma) [deg]', lo=1e-4, hi=20.0)
     elevation_sigma_deg: float = _p(1.5, 'radar elevation noise (1 sigma) [deg]', lo=1e-4,
                                     hi=30.0)
+    reflection_height_m: float = _p(
+        0.35, 'prior mean height above the road of all the vehicle targets, multipath images '
+        'below the road included [m]', lo=-2.0, hi=5.0)
     reflection_height_sigma_m: float = _p(
-        0.1, 'uncertainty of the prior mean reflection height (hypotheses.reflection_height_m)'
-        ' [m]', lo=1e-3, hi=5.0)
+        0.2, 'uncertainty of refine.reflection_height_m [m]', lo=1e-3, hi=5.0)
     cell_frames: float = _p(
         3.0, 'frames of one (vehicle position, aspect) cell that count at full weight; more '
         'frames share that weight (a queued car must not dominate)', lo=0.1, hi=1e6)

@@ -18,12 +18,12 @@ Aspect angle ``alpha`` (rad): the direction from the vehicle towards the radar, 
 vehicle frame (x forward, y left): 0 = the radar sees the front, +pi/2 = it sees the left
 side, pi = the rear.
 
-Coefficients of a profile of order K (``refine.profile_harmonics``), shape (3K + 2,)::
+Coefficients of a profile of order K (``refine.profile_harmonics``), shape (2K + 2,)::
 
-    [a_0 .. a_K,  b_1 .. b_K,  c_0 .. c_K]
+    [a_0 .. a_K,  b_1 .. b_K,  c_0]
     m_x(alpha) = a_0 + sum_k a_k cos(k alpha)     (even: mirror symmetry)
     m_y(alpha) =       sum_k b_k sin(k alpha)     (odd: mirror symmetry)
-    m_z(alpha) = c_0 + sum_k c_k cos(k alpha)     (even)
+    m_z        = c_0                              (one mean height)
 
 in metres, vehicle frame, relative to the localisation reference point. The mirror
 symmetry (a car seen at aspect -alpha is the mirror image in y of the car seen at alpha) is
@@ -32,6 +32,11 @@ otherwise absorb a radar displacement across the line of sight. The one mode it 
 remove, a pure depth along the line of sight (a_1 = b_1), trades off against the radar's
 position along its boresight when the vehicle is seen from one bearing only; the refinement
 reports that uncertainty instead of assuming it away.
+
+The height is one number, not a function of the aspect: the lanes towards and away from a
+radar lie on either side of it, so a front/rear height difference would be confounded with
+the radar's roll (measured on the simulator: 0.5-0.8 deg of roll error with cos(alpha)
+height terms, 0.02-0.17 deg without).
 """
 from __future__ import annotations
 
@@ -41,8 +46,8 @@ from radar_calib_ros.types import F64
 
 
 def n_coefficients(harmonics: int) -> int:
-    """Number of profile coefficients of order ``harmonics``: 3K + 2."""
-    return 3 * harmonics + 2
+    """Number of profile coefficients of order ``harmonics``: 2K + 2."""
+    return 2 * harmonics + 2
 
 
 def profile_basis(aspect_rad: F64, harmonics: int) -> tuple[F64, F64]:
@@ -56,9 +61,9 @@ def profile_basis(aspect_rad: F64, harmonics: int) -> tuple[F64, F64]:
 
     Returns
     -------
-    basis : ndarray of shape (n, 3, 3K + 2)
+    basis : ndarray of shape (n, 3, 2K + 2)
         ``basis[i] @ coefficients`` is the mean offset (x, y, z) at ``aspect_rad[i]``.
-    d_basis : ndarray of shape (n, 3, 3K + 2)
+    d_basis : ndarray of shape (n, 3, 2K + 2)
         Derivative of ``basis`` over the aspect angle [1/rad].
     """
     aspect = np.asarray(aspect_rad, float)
@@ -75,21 +80,19 @@ def profile_basis(aspect_rad: F64, harmonics: int) -> tuple[F64, F64]:
     basis[:, 1, iy:iz] = sin_k
     d_basis[:, 1, iy:iz] = k * cos_k
     basis[:, 2, iz] = 1.0
-    basis[:, 2, iz + 1:] = cos_k
-    d_basis[:, 2, iz + 1:] = -k * sin_k
     return basis, d_basis
 
 
 def evaluate_profile(coefficients: F64, aspect_rad: F64) -> F64:
     """Mean target offset (n, 3) in the vehicle frame [m] at the given aspect angles.
 
-    The order is inferred from the coefficient count (3K + 2), so a stored
+    The order is inferred from the coefficient count (2K + 2), so a stored
     ``Refinement.reflection_profile`` can be drawn without the config.
     """
     coefficients = np.asarray(coefficients, float)
-    harmonics = (coefficients.shape[0] - 2) // 3
-    if n_coefficients(harmonics) != coefficients.shape[0]:
-        raise ValueError(f'a reflection profile has 3K + 2 coefficients, got '
+    harmonics = (coefficients.shape[0] - 2) // 2
+    if coefficients.shape[0] < 2 or n_coefficients(harmonics) != coefficients.shape[0]:
+        raise ValueError(f'a reflection profile has 2K + 2 coefficients, got '
                          f'{coefficients.shape[0]}')
     basis, _ = profile_basis(np.atleast_1d(np.asarray(aspect_rad, float)), harmonics)
     return basis @ coefficients
