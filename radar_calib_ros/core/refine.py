@@ -1025,7 +1025,10 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     rel = pts[:, :2] - est.translation_m[:2]
     p_rng = np.hypot(rel[:, 0], rel[:, 1])
     p_bear = (np.arctan2(rel[:, 1], rel[:, 0]) - bore + np.pi) % (2 * np.pi) - np.pi
-    inside = (p_rng <= r_max) & (p_rng >= 5.0) & (p_bear >= b_lo - 0.1) & (p_bear <= b_hi + 0.1)
+    # where a drive is most useful: close enough for the bearing to change across the car,
+    # far enough to see the whole car
+    inside = ((p_rng <= min(r_max, 60.0)) & (p_rng >= 10.0) & (p_bear >= b_lo - 0.1)
+              & (p_bear <= b_hi + 0.1))
     if not inside.any():
         return []
     # thin to about one sample per 5 m of road per direction

@@ -263,20 +263,19 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     median_spread = float(np.median(finite)) if finite.size else 0.0
     sentences = [
         f'The position along the boresight is uncertain by {100 * sigma_along_m:.0f} cm '
-        f'(1 sigma, more than {100 * threshold_m:.0f} cm): the vehicle was seen only at '
-        f'its {_join(sides) or "no"} aspect(s), each from bearings spread by about '
+        f'(1 sigma, more than {100 * threshold_m:.0f} cm): each side of the vehicle '
+        f'({_join(sides) or "none"}) was seen from bearings spread by only about '
         f'{median_spread:.0f} deg, so the depth of its reflections trades off against the '
         'radar\'s distance.']
     useful = [c for c in candidates if c.gain > 0.0][:2]
     for cand in useful:
         side = 'left' if cand.bearing_rad > 0 else 'right'
-        what = ('the lane already driven, again' if cand.driven
-                else 'the opposite direction of a road already driven')
+        what = ('again on a lane already driven' if cand.driven
+                else 'on a road already driven, in the other direction,')
         sentences.append(
-            f'Drive {compass_name(cand.heading_rad)}bound through the view about '
-            f'{cand.range_m:.0f} m from the radar, {abs(math.degrees(cand.bearing_rad)):.0f} '
-            f'deg {side} of its boresight ({what}): it shows the vehicle at aspects already '
-            'seen from a new bearing.')
+            f'Drive {compass_name(cand.heading_rad)}bound {what} through the view about '
+            f'{cand.range_m:.0f} m from the radar and {abs(math.degrees(cand.bearing_rad)):.0f} '
+            f'deg {side} of its boresight: it shows sides already seen from new bearings.')
     across = boresight_rad + math.pi / 2.0
     sentences.append(
         f'Better still, cross the view (heading {compass_name(across)} or '
