@@ -94,6 +94,9 @@ class QosConfig:
 class MovingConfig:
     min_speed_kmh: float = _p(0.1, 'targets with |v_r| below this are stationary [km/h]',
                               lo=0.0, hi=100.0)
+    noise_factor: float = _p(3.0, 'also drop |v_r| below this many sigma of the stationary '
+                             'targets\' v_r noise, estimated from the data (0 = off)',
+                             lo=0.0, hi=20.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
