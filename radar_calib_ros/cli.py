@@ -11,7 +11,6 @@ import argparse
 import logging
 import math
 import sys
-import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -257,30 +256,41 @@ def cmd_simulate(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
-    from radar_calib_ros.groundtruth import calibration_errors, load_ground_truth
+    import shutil
+
+    from radar_calib_ros.groundtruth import GROUND_TRUTH_FILE, load_ground_truth
+    from radar_calib_ros.report import report_calibration
     from radar_calib_ros.result import write_result_yaml
     from radar_calib_ros.sim import simulate
-    with tempfile.TemporaryDirectory(prefix='radar_calib_demo_') as tmp:
-        work = Path(args.out) if args.out else Path(tmp)
-        bag = work / 'demo_bag'
-        print(f'1/3 simulating a {args.duration:.0f} s drive past a roadside radar '
-              f'(scenario {args.scenario!r}, seed {args.seed}) ...', file=out)
-        start = time.perf_counter()
-        simulate(bag, seed=args.seed, duration_s=args.duration, scenario=args.scenario)
-        params = bag / 'params.yaml'
-        config = _load_config(str(params) if params.is_file() else None)
-        print(f'2/3 calibrating {bag} ...', file=out)
-        result, read_s = calibrate_bag(bag, config, progress=_Progress(sys.stderr.isatty()))
-        calibration = result.calibration(config)
-        write_result_yaml(work / 'result.yaml', calibration)
-        print('3/3 result', file=out)
-        for line in summary_lines(calibration, result.stage_times_s, read_s):
-            print(line, file=out)
-        truth = load_ground_truth(bag)
-        if truth is not None:
-            print(_truth_table(calibration, truth, result), file=out)
-        print(f'done in {time.perf_counter() - start:.1f} s'
-              + (f'; files in {work}' if args.out else ''), file=out)
+    work = Path(args.out)
+    bag = work / 'demo_bag'
+    if bag.exists():
+        if not (bag / GROUND_TRUTH_FILE).is_file():
+            print(f'error: {bag} exists and is not a demo recording; choose another --out',
+                  file=sys.stderr)
+            return 2
+        shutil.rmtree(bag)  # our own earlier demo recording: replace it
+    print(f'1/4 simulating a {args.duration:.0f} s drive past a roadside radar '
+          f'(scenario {args.scenario!r}, seed {args.seed}) ...', file=out)
+    start = time.perf_counter()
+    simulate(bag, seed=args.seed, duration_s=args.duration, scenario=args.scenario)
+    params = bag / 'params.yaml'
+    config = _load_config(str(params) if params.is_file() else None)
+    print(f'2/4 calibrating {bag} ...', file=out)
+    result, read_s = calibrate_bag(bag, config, progress=_Progress(sys.stderr.isatty()))
+    calibration = result.calibration(config)
+    write_result_yaml(work / 'result.yaml', calibration)
+    print('3/4 result', file=out)
+    for line in summary_lines(calibration, result.stage_times_s, read_s):
+        print(line, file=out)
+    truth = load_ground_truth(bag)
+    if truth is not None:
+        print(_truth_table(calibration, truth, result), file=out)
+    files = report_calibration(work / 'report', result, config, calibration=calibration,
+                               truth=truth, source=str(bag))
+    print(f'4/4 report: {files.html}', file=out)
+    print(f'done in {time.perf_counter() - start:.1f} s; recording, result.yaml and report '
+          f'in {work}/', file=out)
     return 0
 
 
@@ -383,11 +393,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help='where on road users the radar sees them (skin, interior, mixed)')
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser('demo', help='simulate, calibrate and compare with the ground truth')
+    p = sub.add_parser('demo',
+                       help='simulate, calibrate, compare with the ground truth and report')
     p.add_argument('--seed', type=int, default=1)
     p.add_argument('--duration', type=float, default=150.0)
     p.add_argument('--scenario', default='baseline')
-    p.add_argument('--out', help='keep the bag and result in this directory')
+    p.add_argument('--out', default='radar_calib_demo',
+                   help='directory for the recording, result and report (default: %(default)s)')
     p.set_defaults(func=cmd_demo)
     return parser
 

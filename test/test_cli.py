@@ -1,0 +1,95 @@
+"""radar-calib: exit codes and one-line errors for bad input (no traceback)."""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import pytest
+
+from radar_calib_ros.cli import main
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    out = io.StringIO()
+    code = main(argv, out=out)
+    return code, out.getvalue(), capsys.readouterr().err
+
+
+def test_missing_bag_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = _run(['calibrate', str(tmp_path / 'nope'), '--output',
+                         str(tmp_path / 'r.yaml')], capsys)
+    assert code == 2
+    assert err.startswith('error: ') and err.count('\n') == 1 and 'Traceback' not in err
+    assert not (tmp_path / 'r.yaml').exists()
+
+
+def test_directory_that_is_not_a_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / 'notabag').mkdir()
+    (tmp_path / 'notabag' / 'x.txt').write_text('hello')
+    code, _, err = _run(['calibrate', str(tmp_path / 'notabag')], capsys)
+    assert code == 2 and 'error: ' in err
+
+
+def test_bad_params_file_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    params = tmp_path / 'p.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    vehicle: {lenght: 4.0}\n')
+    code, _, err = _run(['calibrate', str(tmp_path), '--params', str(params)], capsys)
+    assert code == 2 and "unknown parameter 'vehicle.lenght'" in err
+
+
+def test_wrong_type_in_params_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    params = tmp_path / 'p.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    world.epsg: utm\n')
+    code, _, err = _run(['calibrate', str(tmp_path), '--params', str(params)], capsys)
+    assert code == 2 and "'world.epsg' must be int" in err
+
+
+def test_bad_usage_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(['calibrate']) == 2
+    assert main(['no-such-command']) == 2
+    assert main(['--help']) == 0
+    capsys.readouterr()
+
+
+def test_demo_end_to_end_against_ground_truth(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """The README's main job: simulate, calibrate, compare, report; then the same bag again
+    through `calibrate --json`, whose result must agree with the ground truth."""
+    import json
+
+    from radar_calib_ros.groundtruth import calibration_errors, load_ground_truth
+    from radar_calib_ros.result import load_result
+
+    code, out, err = _run(['demo', '--out', str(tmp_path / 'demo'), '--duration', '150'],
+                          capsys)
+    assert code == 0, err
+    assert 'errors: horizontal' in out and '4/4 report' in out
+    assert (tmp_path / 'demo' / 'report' / 'report.html').is_file()
+    bag = tmp_path / 'demo' / 'demo_bag'
+    truth = load_ground_truth(bag)
+    assert truth is not None
+    estimate = load_result(tmp_path / 'demo' / 'result.yaml')
+    errors = calibration_errors(estimate, truth)
+    assert errors['horizontal_m'] < 0.10
+    assert errors['vertical_m'] < 0.20
+    assert errors['rotation_deg'] < 0.3
+
+    code, out, err = _run(['calibrate', str(bag), '--params', str(bag / 'params.yaml'),
+                           '--output', str(tmp_path / 'r.yaml'), '--json',
+                           str(tmp_path / 'r.json')], capsys)
+    assert code == 0, err
+    as_json = json.loads((tmp_path / 'r.json').read_text())
+    assert as_json['translation'] == pytest.approx(estimate['translation'], abs=1e-6)
+    assert 'position' in out and 'result written to' in out
+
+
+def test_vehicle_never_in_view_exits_1_without_result(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from radar_calib_ros.sim import simulate
+    bag = tmp_path / 'never'
+    simulate(bag, seed=3, duration_s=90.0, scenario='vehicle_never_in_view')
+    code, _, err = _run(['calibrate', str(bag), '--params', str(bag / 'params.yaml'),
+                         '--output', str(tmp_path / 'r.yaml')], capsys)
+    assert code == 1
+    assert err.startswith('error: ') and err.count('\n') == 1
+    assert not (tmp_path / 'r.yaml').exists()
