@@ -141,8 +141,8 @@ def _central_difference(t: F64, x: F64, half_span_s: float) -> F64:
     lo = np.searchsorted(t, t - half_span_s, side='left')
     hi = np.searchsorted(t, t + half_span_s, side='right') - 1
     idx = np.arange(t.size)
-    lo, hi = np.minimum(lo, np.maximum(idx - 1, 0)), np.maximum(hi, np.minimum(idx + 1,
-                                                                              t.size - 1))
+    lo = np.minimum(lo, np.maximum(idx - 1, 0))
+    hi = np.maximum(hi, np.minimum(idx + 1, t.size - 1))
     dt = t[hi] - t[lo]
     with np.errstate(divide='ignore', invalid='ignore'):
         return np.where(dt > 0, (x[hi] - x[lo]) / np.where(dt > 0, dt, 1.0), 0.0)
@@ -303,7 +303,7 @@ class _Model:
         if not jac:
             return r_data, None, r_prior, None
         n, n_par, ip = len(sw), self.n_par, self.i_prof
-        los, unit, rate = g['los'], g['unit'], g['rate']
+        los, rate = g['los'], g['rate']
         c, s = g['c'], g['s']
         prof = x[ip:]
         # d(offset rotated to world)/d(aspect)
@@ -326,8 +326,8 @@ class _Model:
         ca, sa = np.cos(g['aspect']), np.sin(g['aspect'])
         d1 = x[-1]
         depth_w = np.column_stack([-(c * ca - s * sa), -(s * ca + c * sa), np.zeros(n)]) * d1
-        drho_dt = np.column_stack([-cl[:, 0], -cl[:, 1], np.zeros(n)]) / (rho_h * self.r_ref)[:,
-                                                                                          None]
+        drho_dt = (np.column_stack([-cl[:, 0], -cl[:, 1], np.zeros(n)])
+                   / (rho_h * self.r_ref)[:, None])
         de[:, :, 3:6] -= depth_w[:, :, None] * drho_dt[:, None, :]
         if self.tau_fixed is None:
             off = g['offset']
@@ -424,6 +424,7 @@ def _solve(model: _Model, x0: F64, max_iter: int = 30) -> _Fit:
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
+        assert j is not None and jp is not None
         jw = j * w[:, None]
         h = j.T @ jw + jp.T @ jp
         grad = jw.T @ r + jp.T @ rp
@@ -671,9 +672,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     accepted = np.asarray(selection.accepted_track_ids, np.int64)
     times = _Times.of(recording, candidates, config.sync.time_offset, t0_ns)
     estimate_tau = bool(config.sync.estimate_time_offset) and config.sync.max_time_offset > 0
-    est = Extrinsics(np.asarray(initial.rotation, float), np.asarray(initial.translation_m,
-                                                                      float),
-                     float(initial.time_offset_s))
+    est = Extrinsics(np.asarray(initial.rotation, float),
+                     np.asarray(initial.translation_m, float), float(initial.time_offset_s))
     # Every later step looks only at targets that could come near the box: a generous
     # corridor around the initial estimate (its decimetres and ~1 deg, the largest clock
     # offset at the vehicle's speed) cuts a busy junction's moving targets ten-fold.
@@ -863,8 +863,6 @@ def _inside_elevation_view(pos: F64, yaw: F64, est: Extrinsics, fov: tuple[float
         el = np.arcsin(np.clip(s[:, 2] / np.maximum(np.linalg.norm(s, axis=1), 1e-9), -1, 1))
         ok &= (el > fov[0]) if lower else (el < fov[1])
     return ok
-
-
 
 
 def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, poses: _Poses,

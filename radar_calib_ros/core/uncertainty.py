@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -106,22 +107,25 @@ def pass_jackknife_covariance(jacobian: F64, residuals: F64, pass_id: I64,
 
 
 def combined_covariance(passes: PassCovariance, bands: PassCovariance,
-                        horizontal: slice = slice(3, 5)) -> F64:
+                        block: tuple[int, ...] = (3, 4, 6)) -> F64:
     """The reported covariance: agreement across passes, plus, for the horizontal
-    translation, agreement across range bands.
+    translation and the clock offset, agreement across range bands.
 
     The pass jackknife cannot see an error every pass shares. The one that matters here is
     range-dependent: which parts of a car are seen (signal strength, the elevation field of
     view, occlusion by nearer cars) changes with range, which an aspect-only reflection
     profile cannot follow, and the fit then trades it against the radar's position along the
-    boresight (measured on the simulator's skin model: 5-18 cm while the passes agreed to
-    2-6 cm). Leaving out one range quartile at a time exposes it. Only the horizontal
-    translation block takes it: for pitch and height, leaving out a quartile removes range
-    leverage, and the jackknife would report that loss of leverage (0.3-0.8 deg, 30-50 cm
-    measured) rather than a disagreement. The two are added as independent error sources.
+    boresight and, through the distance travelled, against the clock offset (measured on
+    the simulator's skin model: 5-18 cm while the passes agreed to 2-6 cm). Leaving out one
+    range band at a time exposes it. Only that block (horizontal translation, clock offset:
+    indices into the parameter vector) takes it: for pitch and height, leaving out a band
+    removes range leverage, and the jackknife would report that loss of leverage (0.3-0.8
+    deg, 30-50 cm measured) rather than a disagreement. The two are added as independent
+    error sources.
     """
     out = passes.covariance.copy()
-    out[horizontal, horizontal] += bands.covariance[horizontal, horizontal]
+    idx = np.array([i for i in block if i < out.shape[0]])
+    out[np.ix_(idx, idx)] += bands.covariance[np.ix_(idx, idx)]
     return out
 
 
@@ -135,7 +139,7 @@ def _inverse(matrix: F64) -> F64:
 
 # --- figures of the covariance ----------------------------------------------------------
 
-def sigma_summary(covariance: F64, rotation: F64) -> dict[str, float]:
+def sigma_summary(covariance: F64, rotation: F64) -> dict[str, Any]:
     """1-sigma figures of a 7x7 [rotation vector, translation, time offset] covariance.
 
     ``along``/``across`` are horizontal, along and across the boresight's ground
@@ -253,8 +257,8 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     """
     if not sigma_along_m > threshold_m:
         return []
-    seen = np.flatnonzero(coverage.weights.sum(axis=1) > 0.02 * max(coverage.weights.sum(),
-                                                                       1e-12))
+    total = max(float(coverage.weights.sum()), 1e-12)
+    seen = np.flatnonzero(coverage.weights.sum(axis=1) > 0.02 * total)
     centres = 0.5 * (coverage.aspect_edges_deg[:-1] + coverage.aspect_edges_deg[1:])
     sides = sorted({aspect_name(math.radians(centres[i])) for i in seen},
                    key=lambda n: list(_SIDES.values()).index(n))

@@ -85,9 +85,8 @@ def _path(kind: tuple, yaw_r: float) -> tuple[np.ndarray, np.ndarray]:
     return xy, np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
 
 
-def _vehicle_targets(rng: np.random.Generator, model: str, aspect: np.ndarray,
-                     vehicle_cfg, profile: np.ndarray | None) -> tuple[np.ndarray, np.ndarray,
-                                                                      np.ndarray]:
+def _vehicle_targets(rng: np.random.Generator, model: str, aspect: np.ndarray, vehicle_cfg,
+                     profile: np.ndarray | None) -> tuple[np.ndarray, ...]:
     """(n, 3) reflector positions in the vehicle frame, (n,) True for wheels, (n,) extra
     delay along the line of sight [m] (multi-bounce)."""
     n = aspect.size
@@ -231,8 +230,8 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
     # clutter: moving targets far from the vehicle, stationary targets (never used)
     n_clutter = 3 * f_idx.size
     cl_frame = rng.integers(0, frame_t.size, n_clutter)
-    cl_sensor = np.column_stack([rng.uniform(5, 120, n_clutter), rng.uniform(-60, 60,
-                                                                               n_clutter),
+    cl_sensor = np.column_stack([rng.uniform(5, 120, n_clutter),
+                                 rng.uniform(-60, 60, n_clutter),
                                  rng.uniform(-6, -4, n_clutter)])
     cl_v = np.where(rng.random(n_clutter) < 0.5, 0.0, rng.uniform(-15, 15, n_clutter))
     frame_of_target = np.concatenate([f_idx[tgt_frame], cl_frame])
