@@ -9,8 +9,11 @@ target counts, through two kinds of residuals:
 * Radial velocity. For a rigid car v_r = (v_ref + omega x r) . u, u the unit line of sight,
   whatever point reflected. It depends on the rotation and the clock offset, not on the
   radar's position (to first order) and not on where on the car the target lies: it pins
-  the yaw (and partly pitch and roll) and the clock offset free of any reflection model.
-  Wheels break rigidity (micro-Doppler), hence a robust loss.
+  the yaw and the clock offset free of any reflection model. (Its line of sight takes the
+  target's height from the model, not from the 1-2 deg elevation noise: used inside the
+  nonlinear model that noise biases the pitch by ~0.1-0.5 deg; a corrected-score version
+  was tried and carried too little pitch information to be worth it. Pitch and roll come
+  from the heights.) Wheels break rigidity (micro-Doppler), hence a robust loss.
 * Position. The target in the vehicle frame minus the reflection profile m(alpha), the mean
   offset of the targets as a function of the aspect angle (``core/reflection.py``),
   estimated jointly. Residuals are whitened per target by the radar's spherical noise
@@ -19,10 +22,11 @@ target counts, through two kinds of residuals:
   re-estimated every gate round.
 
 Gauge and priors (the least we can defend):
-* Left-right symmetry of the car (m_x, m_z even, m_y odd in alpha) fixes the lateral
-  profile; the depth along the line of sight stays free and is resolved only by seeing an
-  aspect from several bearings. Its trade-off with the radar's position along the
-  boresight is reported, not hidden.
+* Left-right symmetry of the car (m_x even, m_y odd in alpha, one mean height) fixes the
+  lateral profile; the depth along the line of sight stays free (and may drift linearly
+  with range, one more coefficient) and is resolved only by seeing an aspect from several
+  bearings. Its trade-off with the radar's position along the boresight is reported, not
+  hidden.
 * The mean reflection height cannot be told from the radar's altitude by the vehicle alone
   (both shift every target's height equally). A stated prior fixes it:
   ``refine.reflection_height_m`` above the road, +- ``refine.reflection_height_sigma_m``;
@@ -37,15 +41,17 @@ Gauge and priors (the least we can defend):
 * Where the elevation field of view (found from all targets' elevations) cuts off the lower
   part of the car, what remains is higher on average, and more so at short range; a pitch
   error would follow it. Those frames give no height information (``_inside_elevation_view``).
-* Weak bounds keep the profile on the car (coefficients within about a car length) and the
-  clock offset within ``sync.max_time_offset``; they only matter when the data say nothing.
+* Weak bounds keep the profile on the car (coefficients within about a car length), the
+  clock offset within ``sync.max_time_offset`` and the translation within half a metre of
+  the paper's estimate; they only matter when the data say nothing, and then they are what
+  the reported uncertainty shows.
 
 Information, not frame count: a car crawling in a queue gives hundreds of near-identical
 frames from one place and one aspect. Frames are binned by (vehicle position, aspect) and
 the frames of a bin share the weight of ``refine.cell_frames`` frames.
 
-The uncertainty comes from agreement across passes (``core/uncertainty.py``), never from the
-per-target fit or from r_i.
+The uncertainty comes from agreement across passes and across range bands
+(``core/uncertainty.py``), never from the per-target fit or from r_i.
 """
 from __future__ import annotations
 
@@ -690,7 +696,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     harmonics = cfg.profile_harmonics
     x_lo, x_hi, _, _ = box_limits(config.vehicle)
     centre_x = 0.5 * (x_lo + x_hi)
-    prior_mean, prior_sigma = _priors(config, harmonics, estimate_tau, est.time_offset_s)
+    prior_mean, prior_sigma = _priors(config, harmonics, estimate_tau)
     start = est
     profile = np.nan_to_num(prior_mean[(7 if estimate_tau else 6):])
     scatter = np.full(3, cfg.position_sigma_m)
@@ -779,8 +785,7 @@ def _anchor(prior_mean: F64, start: Extrinsics, est: Extrinsics) -> F64:
     return mean
 
 
-def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool,
-            tau0: float) -> tuple[F64, F64]:
+def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F64, F64]:
     """Prior means (NaN = none) and sigmas of all parameters (see the module docstring)."""
     veh = config.vehicle
     i_prof = 7 if estimate_tau else 6
@@ -805,7 +810,6 @@ def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool,
     mean[i_prof:i_prof + prof_mean.size] = prof_mean
     sigma[i_prof:i_prof + prof_mean.size] = prof_sigma
     mean[-1], sigma[-1] = 0.0, 1.0     # range slope of the depth: metres per unit of range
-    del tau0
     return mean, sigma
 
 
