@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from radar_calib_ros import metrics
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.core import associate, cluster, moving
+from radar_calib_ros.pipeline import track_targets
 from radar_calib_ros.errors import InsufficientDataError, ResultFileError
 from radar_calib_ros.groundtruth import calibration_errors
 from radar_calib_ros.io.geo import LocalFrame
@@ -115,20 +115,6 @@ def calibration_extrinsics(calibration: Mapping[str, Any], frame: LocalFrame,
     offset = calibration_time_offset_s(calibration) - config.sync.time_offset
     return utm_to_extrinsics(rotation, np.asarray(calibration['translation'], float), frame,
                              offset)
-
-
-def track_targets(recording: Recording, config: CalibConfig) -> TrackedTargets:
-    """Stages 1-3 only (moving targets, clusters, tracks): the paper's "object tracking
-    step" on an evaluation recording. Same calls as ``pipeline.run_calibration``."""
-    targets = recording.targets
-    moving_index = np.flatnonzero(moving.filter_moving_targets(targets.radial_velocity_mps,
-                                                               config.moving))
-    if moving_index.size == 0:
-        return TrackedTargets(np.zeros(0, np.int64), np.zeros(0, np.int64))
-    moving_targets = targets.subset(moving_index)
-    clusters = cluster.cluster_targets(moving_targets, config.cluster)
-    local = associate.associate_clusters(moving_targets, clusters, config.associate)
-    return TrackedTargets(moving_index[local.target_index], local.track_id)
 
 
 def bin_by_range(paper: metrics.PaperMetrics,

@@ -60,6 +60,46 @@ class CalibrationResult:
                                 quality=quality_dict(self.quality), stamp=stamp)
 
 
+class _StageClock:
+    """Times the stages and reports progress between them."""
+
+    def __init__(self, progress: ProgressFn | None = None) -> None:
+        self.progress = progress
+        self.times: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        if self.progress is not None:
+            self.progress(name, STAGES.index(name) / len(STAGES))
+        start = time.perf_counter()
+        yield
+        self.times[name] = time.perf_counter() - start
+        _LOG.debug('stage %s took %.3f s', name, self.times[name])
+
+
+def track_targets(recording: Recording, config: CalibConfig, *,
+                  clock: _StageClock | None = None) -> TrackedTargets:
+    """Stages 1-3 (moving targets, clusters, tracks): the paper's object-tracking step, also
+    all that ``evaluate`` runs on a second recording.
+
+    Returns every moving target (``track_id`` -1 where it joined no track); empty when
+    nothing moves.
+    """
+    stage = clock or _StageClock()
+    targets = recording.targets
+    with stage('moving'):
+        moving_index = np.flatnonzero(moving.filter_moving_targets(
+            targets.radial_velocity_mps, config.moving))
+    if moving_index.size == 0:
+        return TrackedTargets(np.zeros(0, np.int64), np.zeros(0, np.int64))
+    moving_targets = targets.subset(moving_index)
+    with stage('cluster'):
+        clusters = cluster.cluster_targets(moving_targets, config.cluster)
+    with stage('associate'):
+        local = associate.associate_clusters(moving_targets, clusters, config.associate)
+    return TrackedTargets(moving_index[local.target_index], local.track_id)
+
+
 def run_calibration(recording: Recording, config: CalibConfig, *,
                     progress: ProgressFn | None = None) -> CalibrationResult:
     """Calibrate the radar of a recording.
@@ -70,34 +110,16 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
         The data cannot be calibrated (vehicle never seen, too few passes, hypotheses that
         do not agree); the message says which and with what numbers.
     """
-    times: dict[str, float] = {}
-
-    @contextmanager
-    def stage(name: str) -> Iterator[None]:
-        if progress is not None:
-            progress(name, STAGES.index(name) / len(STAGES))
-        start = time.perf_counter()
-        yield
-        times[name] = time.perf_counter() - start
-        _LOG.debug('stage %s took %.3f s', name, times[name])
-
+    stage = _StageClock(progress)
     targets = recording.targets
     if len(targets) == 0:
         raise InsufficientDataError('moving', 'the recording has no radar target')
-    with stage('moving'):
-        moving_index = np.flatnonzero(moving.filter_moving_targets(
-            targets.radial_velocity_mps, config.moving))
-    if moving_index.size == 0:
+    tracked = track_targets(recording, config, clock=stage)
+    if tracked.target_index.size == 0:
         raise InsufficientDataError('moving', 'no moving radar target in the recording')
-    moving_targets = targets.subset(moving_index)
-    with stage('cluster'):
-        clusters = cluster.cluster_targets(moving_targets, config.cluster)
-    with stage('associate'):
-        tracked_local = associate.associate_clusters(moving_targets, clusters, config.associate)
-    tracked = TrackedTargets(moving_index[tracked_local.target_index], tracked_local.track_id)
     with stage('ground_plane'):
-        plane_points = (moving_targets.positions_m if config.ground.targets == 'moving'
-                        else targets.positions_m)
+        plane_points = (targets.positions_m[tracked.target_index]
+                        if config.ground.targets == 'moving' else targets.positions_m)
         ground = ground_plane.fit_ground_plane(plane_points, config.ground)
     with stage('track'):
         tracks = tuple(track.track_clusters(recording, tracked, ground, config.track))
@@ -123,4 +145,4 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
     if progress is not None:
         progress('done', 1.0)
     return CalibrationResult(current, report, recording, tracked, ground, tracks, selection,
-                             refinement, stage_extrinsics, times)
+                             refinement, stage_extrinsics, stage.times)
