@@ -5,8 +5,9 @@ Bench code, not package code: none of this is offered to users.
 * :func:`naive_fit`, a naive baseline: one least-squares rigid fit of all moving targets
   time-matched to the vehicle within a gate; no clustering, tracking or hypothesis
   filtering. A naive user has no initial guess, so the gate comes from iterated closest
-  points (ICP in time): the radar starts at the centroid of the vehicle's positions, level,
-  at twelve headings 30 deg apart; each start alternates gating (moving targets whose
+  points (ICP in time) from twelve starts: level, at headings 30 deg apart, each placed so
+  that the centroid of the moving targets falls on the centroid of the vehicle's
+  trajectory (at their stamps). Each start alternates gating (moving targets whose
   transformed position lies within a shrinking horizontal gate, 15 m down to 3 m, of where
   the vehicle was at that target's stamp) and one 3-D Kabsch fit of the gated targets (sensor
   frame) to the vehicle's footprint centre at ``hypotheses.reflection_height_m`` above the
@@ -18,9 +19,9 @@ Bench code, not package code: none of this is offered to users.
   translation maximising a robust Gaussian-mixture likelihood of the moving targets under
   the vehicle's footprint (six Gaussians on a 3 x 2 grid over the box, widened by the
   radar's noise, plus a uniform outlier floor). Their branch and bound is replaced by an
-  exhaustive search that is just as global at our resolution: every 2 deg of yaw, a Hough
-  vote of (target, component) pairs over translation in 1 m bins, smoothed, then the best
-  five candidates polished by Nelder-Mead on the likelihood itself. Roll, pitch and height
+  exhaustive global search at 2 deg / 1 m resolution (every 2 deg of yaw, a Hough vote of
+  (target, component) pairs over translation in 1 m bins, smoothed), then the best five
+  candidates polished by Nelder-Mead on the likelihood itself. Roll, pitch and height
   are not estimated: the sensor's x, y are taken as horizontal (roll = pitch = 0) and the
   height is a nominal 6 m above the road (the road = the vehicle's reference point minus
   ``vehicle.ref_height``); errors are reported against what it outputs. Clock offset: 0.
