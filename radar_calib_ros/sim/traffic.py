@@ -14,7 +14,7 @@ joined by U-turns far down the arms, among the traffic and under the same rules.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,12 +40,28 @@ CAR, TRUCK, CYCLIST, PEDESTRIAN = 1, 2, 3, 4
 
 # IDM parameters per class: desired speed mean/sd [m/s], max accel, comfortable decel
 # [m/s^2], time headway [s], jam distance [m], lateral acceleration in curves [m/s^2]
+# (class means: each driver draws its own around them, ``_driver``)
 _IDM = {
     CAR: (13.0, 1.5, 1.5, 2.0, 1.2, 2.0, 2.2),
     TRUCK: (11.0, 1.0, 0.8, 1.5, 1.6, 3.0, 1.5),
     CYCLIST: (5.0, 0.8, 1.0, 1.5, 1.0, 1.0, 2.0),
     PEDESTRIAN: (1.35, 0.2, 0.8, 1.5, 0.5, 0.3, 3.0),
 }
+
+
+def _merge_lanes(lane: I64, u: F64) -> tuple[I64, F64]:
+    """Per sample of one route: the exit lane it is about to join inside the junction (past
+    its stop line, ``u > 0`` on the inbound lane) and its coordinate on that lane."""
+    merge_lane = np.full(lane.size, NO_LANE, np.int64)
+    merge_u = np.zeros(lane.size)
+    change = np.flatnonzero((lane[1:] != lane[:-1]) & (lane[1:] != NO_LANE)
+                            & (lane[:-1] != NO_LANE)) + 1
+    for c in change:
+        inside = np.arange(c - 1, -1, -1)
+        inside = inside[(lane[inside] == lane[c - 1]) & (u[inside] > 0.0)]
+        merge_lane[inside] = lane[c]
+        merge_u[inside] = u[c] - (c - inside) * DS_M
+    return merge_lane, merge_u
 
 
 @dataclass(frozen=True)
@@ -68,6 +84,10 @@ class RouteTable:
     stop_key: F64
     stop_arm: I64
     stop_on_green: NDArray[np.bool_]
+    #: inside the junction (past the stop line, before the route joins its exit lane): the
+    #: exit lane and the coordinate there (negative: before joining), else NO_LANE / 0
+    merge_lane: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
+    merge_u: F64 = field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def build(cls, routes: list[Route], caps: list[F64 | float],
@@ -94,6 +114,7 @@ class RouteTable:
                 arms.append(int(arm))
                 green.append(route.stop_on_green)
         order = np.argsort(keys) if keys else np.zeros(0, np.int64)
+        merges = [_merge_lanes(r.lane_id, r.lane_u) for r in routes]
         return cls(tuple(routes), offset, n,
                    np.concatenate([r.path.xy for r in routes]),
                    np.concatenate([r.path.heading_rad for r in routes]),
@@ -102,7 +123,9 @@ class RouteTable:
                    np.concatenate([r.lane_u for r in routes]),
                    np.concatenate(v_lims),
                    np.asarray(keys, float)[order], np.asarray(arms, np.int64)[order],
-                   np.asarray(green, bool)[order])
+                   np.asarray(green, bool)[order],
+                   np.concatenate([m[0] for m in merges]),
+                   np.concatenate([m[1] for m in merges]))
 
     def sample_index(self, route: I64, s: F64) -> tuple[I64, F64]:
         """(global index of the sample at or before s, fraction to the next) per object."""
@@ -145,6 +168,21 @@ class SignalPlan:
         out[self.arm_phase == phase] = state
         out[self.arm_phase < 0] = 0
         return out
+
+    def states_at(self, times: F64, arms: I64) -> I64:
+        """The state of ``arms[i]``'s signal at ``times[i]`` (vectorised :meth:`states`)."""
+        times = np.asarray(times, float)
+        arms = np.asarray(arms, np.int64)
+        if self.off:
+            return np.full(arms.size, 3, np.int64)
+        slot = self.green_s + self.amber_s + self.all_red_s
+        tau = (times + self.offset_s) % (slot * self.n_phases)
+        phase = np.floor(tau / slot).astype(np.int64)
+        within = tau - phase * slot
+        state = np.where(within < self.green_s, 0, np.where(
+            within < self.green_s + self.amber_s, 1, 2))
+        arm_phase = self.arm_phase[arms]
+        return np.where(arm_phase < 0, 0, np.where(arm_phase == phase, state, 2))
 
 
 @dataclass(frozen=True)
@@ -432,10 +470,10 @@ def _run(scenario: Scenario, table: RouteTable, sources: list[_Source], signals:
     # static attributes, grown as road users appear
     attrs: dict[str, list[float]] = {k: [] for k in (
         'cls', 'route', 'length', 'width', 'height', 'overhang', 'wheelbase', 'wob_amp',
-        'wob_k', 'wob_phase', 'v0', 'amax', 'b', 'T', 's0')}
+        'wob_k', 'wob_phase', 'v0', 'amax', 'b', 'T', 's0', 'react')}
 
     def add(kind: int, route: int, dims: tuple[float, ...], v0: float) -> int:
-        _, amax, _, b, headway, s0, _ = _IDM[kind]
+        amax, b, headway, s0, react = _driver(kind, rng)
         for key, value in zip(('cls', 'route', 'length', 'width', 'height', 'overhang',
                                'wheelbase', 'wob_amp'), (kind, route, *dims[:6])):
             attrs[key].append(value)
@@ -446,6 +484,7 @@ def _run(scenario: Scenario, table: RouteTable, sources: list[_Source], signals:
         attrs['b'].append(b)
         attrs['T'].append(headway)
         attrs['s0'].append(s0)
+        attrs['react'].append(react)
         return len(attrs['cls']) - 1
 
     # id 0: the calibration vehicle (its wobble is drawn too: a real driver)
@@ -463,7 +502,7 @@ def _run(scenario: Scenario, table: RouteTable, sources: list[_Source], signals:
     step_start = np.zeros(n_steps + 1, np.int64)
     count = 0
     a_arr = {k: np.zeros(0) for k in ('route', 'length', 'overhang', 'v0', 'amax', 'b', 'T',
-                                      's0', 'cls')}
+                                      's0', 'cls', 'react')}
     stale = True
     for k in range(n_steps):
         t = t0 + k * DT_S
@@ -476,6 +515,7 @@ def _run(scenario: Scenario, table: RouteTable, sources: list[_Source], signals:
                     kind = TRUCK
                 route = src.routes[int(rng.choice(len(src.routes), p=src.weights))]
                 dims = _new_user(kind, rng)
+                room = math.inf
                 if src.lane != NO_LANE and act_id.size:
                     routes_now = np.asarray(attrs['route'], np.int64)[act_id]
                     idx, _ = table.sample_index(routes_now, act_s)
@@ -484,19 +524,26 @@ def _run(scenario: Scenario, table: RouteTable, sources: list[_Source], signals:
                         u_min = np.min(table.lane_u[idx][on_lane]
                                        - np.asarray(attrs['overhang'])[act_id][on_lane])
                         u_start = table.lane_u[table.offset[route]]
-                        if u_min < u_start + dims[0] + 3.0:
+                        room = float(u_min - (u_start + dims[0]))
+                        if room < 3.0:
                             continue  # the lane is backed up to its end: no room
                 mean_v0, sd_v0 = _IDM[kind][0], _IDM[kind][1]
                 v0 = float(np.clip(rng.normal(mean_v0, sd_v0), 0.5 * mean_v0, 1.35 * mean_v0))
                 new = add(kind, route, dims, v0)
                 act_id = np.append(act_id, new)
                 act_s = np.append(act_s, 0.0)
-                act_v = np.append(act_v, min(v0, float(table.v_lim[table.offset[route]])))
+                act_v = np.append(act_v, min(v0, float(table.v_lim[table.offset[route]]),
+                                             _stoppable_speed(room)))
                 stale = True
         if k == cal_step:
+            # the calibration vehicle joins where its drive begins (before the recording
+            # starts); road users standing in its place leave, and it comes in no faster
+            # than it can stop behind the next one
+            act_id, act_s, act_v, room = _make_room(table, attrs, act_id, act_s, act_v,
+                                                    cal_start_s)
             act_id = np.append(act_id, 0)
             act_s = np.append(act_s, cal_start_s)
-            act_v = np.append(act_v, 8.0)
+            act_v = np.append(act_v, min(8.0, _stoppable_speed(room)))
             order = np.argsort(act_id, kind='stable')
             act_id, act_s, act_v = act_id[order], act_s[order], act_v[order]
             stale = True
@@ -531,6 +578,52 @@ def _run(scenario: Scenario, table: RouteTable, sources: list[_Source], signals:
                       np.concatenate(log_v), users, table, drive, signals)
 
 
+def _stoppable_speed(room_m: float) -> float:
+    """Entry speed [m/s] that can stop within ``room_m`` of free lane ahead at a firm
+    3 m/s^2, keeping 2 m (a road user must not appear on top of a queue)."""
+    return math.sqrt(2.0 * 3.0 * max(room_m - 2.0, 0.0))
+
+
+def _make_room(table: RouteTable, attrs: dict[str, list[float]], act_id: I64, act_s: F64,
+               act_v: F64, s_start: float) -> tuple[I64, F64, F64, float]:
+    """Drop the active road users whose bodies lie where the calibration vehicle (id 0,
+    route 0) starts, at arc length ``s_start``; also the free lane ahead of it [m]."""
+    idx0, frac0 = table.sample_index(np.zeros(1, np.int64), np.array([s_start]))
+    lane0 = table.lane_id[idx0[0]]
+    if lane0 == NO_LANE or act_id.size == 0:
+        return act_id, act_s, act_v, math.inf
+    u0 = float(table.lane_u[idx0[0]] + frac0[0] * DS_M)
+    rear0, front0 = u0 - attrs['overhang'][0], u0 + attrs['length'][0] - attrs['overhang'][0]
+    routes = np.asarray(attrs['route'], np.int64)[act_id]
+    idx, frac = table.sample_index(routes, act_s)
+    on = table.lane_id[idx] == lane0
+    u = table.lane_u[idx] + frac * DS_M
+    overhang = np.asarray(attrs['overhang'])[act_id]
+    rear, front = u - overhang, u - overhang + np.asarray(attrs['length'])[act_id]
+    clash = on & (rear < front0 + 3.0) & (front > rear0 - 3.0)
+    keep = ~clash
+    ahead = on & keep & (rear >= front0)
+    room = float(np.min(rear[ahead]) - front0) if np.any(ahead) else math.inf
+    return act_id[keep], act_s[keep], act_v[keep], room
+
+
+def _driver(kind: int, rng: np.random.Generator) -> tuple[float, float, float, float, float]:
+    """One driver's (max accel, comfortable decel, time headway, jam distance, reaction
+    time) around the class means of ``_IDM``.
+
+    Drivers differ: with one set of constants every car pulls away from a stop line in
+    lockstep with its neighbour in the next lane, and a radar (and the paper's evaluation,
+    which keeps every track within 5 m of the vehicle) sees the two as one object for
+    seconds. Real start-up: perception-reaction times of ~0.5-2.5 s (median ~1 s),
+    accelerations spread by about a quarter.
+    """
+    _, amax, _, b, headway, s0, _ = _IDM[kind]
+    spread = np.exp(rng.normal(0.0, 0.22, 2))
+    react = float(np.clip(rng.lognormal(math.log(1.0), 0.4), 0.4, 2.5))
+    return (float(amax * spread[0]), float(b * spread[1]),
+            float(headway * rng.uniform(0.8, 1.3)), float(s0 * rng.uniform(0.8, 1.4)), react)
+
+
 def _idm_step(table: RouteTable, signals: SignalPlan, a: dict[str, F64], s: F64, v: F64,
               t: float) -> tuple[F64, F64]:
     """One IDM step of every road user (leaders in the lane, stop lines, curve limits)."""
@@ -541,14 +634,25 @@ def _idm_step(table: RouteTable, signals: SignalPlan, a: dict[str, F64], s: F64,
     u = table.lane_u[idx] + frac * DS_M
     gap = np.full(s.size, np.inf)
     v_lead = np.zeros(s.size)
-    # leader: the next road user ahead in the same lane (one lexsort)
-    on = np.flatnonzero(lane != NO_LANE)
-    if on.size > 1:
-        order = on[np.lexsort((u[on], lane[on]))]
-        same = lane[order[1:]] == lane[order[:-1]]
-        me, ahead = order[:-1][same], order[1:][same]
-        gap[me] = u[ahead] - a['overhang'][ahead] - (u[me] + front[me])
-        v_lead[me] = v[ahead]
+    # leader: the next road user ahead in the same lane (one lexsort). Inside the junction
+    # a road user also queues on the exit lane it is about to join, so two flows merging
+    # into one lane take turns instead of driving into each other.
+    m_lane = table.merge_lane[idx]
+    m_u = table.merge_u[idx] + frac * DS_M
+    who = np.concatenate([np.flatnonzero(lane != NO_LANE), np.flatnonzero(m_lane != NO_LANE)])
+    e_lane = np.concatenate([lane[lane != NO_LANE], m_lane[m_lane != NO_LANE]])
+    e_u = np.concatenate([u[lane != NO_LANE], m_u[m_lane != NO_LANE]])
+    if who.size > 1:
+        order = np.lexsort((e_u, e_lane))
+        same = e_lane[order[1:]] == e_lane[order[:-1]]
+        me_e, ahead_e = order[:-1][same], order[1:][same]
+        me, ahead = who[me_e], who[ahead_e]
+        entry_gap = e_u[ahead_e] - a['overhang'][ahead] - (e_u[me_e] + front[me])
+        # the nearest leader over both of a road user's entries
+        first = np.lexsort((entry_gap, me))
+        first = first[np.concatenate([[True], me[first][1:] != me[first][:-1]])[:first.size]]
+        gap[me[first]] = entry_gap[first]
+        v_lead[me[first]] = v[ahead[first]]
     # stop lines whose signal holds this road user
     if table.stop_key.size:
         key = route * 1e6 + s + front + 0.05
@@ -557,7 +661,12 @@ def _idm_step(table: RouteTable, signals: SignalPlan, a: dict[str, F64], s: F64,
         jj = np.minimum(j, table.stop_key.size - 1)
         has &= np.floor(table.stop_key[jj] / 1e6 + 1e-9).astype(np.int64) == route
         if np.any(has):
-            state = signals.states(t)[table.stop_arm[jj]]
+            arm = table.stop_arm[jj]
+            state = signals.states_at(np.full(s.size, t), arm)
+            # at a light that has just turned green each driver starts after its own
+            # perception-reaction time (stopping for amber and red stays as timed)
+            starting = (state == 0) & (signals.states_at(t - a['react'], arm) == 2)
+            state = np.where(starting, 2, state)
             dist = table.stop_key[jj] - key + 0.05
             on_green = table.stop_on_green[jj]
             can_stop = dist > v * v / (2.0 * 3.5)
