@@ -247,8 +247,9 @@ def cmd_simulate(args: argparse.Namespace, out: TextIO) -> int:
     start = time.perf_counter()
     summary = simulate(args.out_bag, seed=args.seed, duration_s=args.duration,
                        storage=args.storage, scenario=args.scenario,
-                       scatter_model=args.scatter_model)
-    print(f'simulated {args.scenario!r} ({args.duration:.0f} s, seed {args.seed}) into '
+                       scatter_model=args.scatter_model, mount_seed=args.mount_seed)
+    mount = '' if args.mount_seed is None else f', mount seed {args.mount_seed}'
+    print(f'simulated {args.scenario!r} ({args.duration:.0f} s, seed {args.seed}{mount}) into '
           f'{args.out_bag} in {time.perf_counter() - start:.1f} s: {summary.n_frames} radar '
           f'frames, {summary.n_targets} targets, {summary.n_passes} passes of the calibration '
           'vehicle', file=out)
@@ -391,6 +392,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--scenario', default='baseline')
     p.add_argument('--scatter-model', default=None,
                    help='where on road users the radar sees them (skin, interior, mixed)')
+    p.add_argument('--mount-seed', type=int, default=None,
+                   help="moves the radar mount a little from the scenario's (default: as "
+                        'described); --seed varies only the drive, traffic and noise, so '
+                        'drives with one scenario and mount seed see the same radar')
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser('demo',

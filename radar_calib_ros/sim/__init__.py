@@ -55,6 +55,9 @@ __all__ = ['SCENARIOS', 'SCATTER_MODELS', 'DEFAULT_SCATTER_MODEL', 'CLASS_NAMES'
 #: Recording start of every simulation (UTC); stamps are deterministic per seed.
 _EPOCH = _dt.datetime(2024, 6, 4, 7, 30, tzinfo=_dt.timezone.utc)
 _STORAGES = ('mcap', 'sqlite3')
+# seed-sequence entropy marking the site's streams apart from any drive seed's
+_SITE_TAG = zlib.crc32(b'radar_calib_ros.sim.site')
+_MOUNT_TAG = zlib.crc32(b'radar_calib_ros.sim.mount')
 
 
 @dataclass(frozen=True)
@@ -90,7 +93,8 @@ class SimulationSummary:
 
 def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
              storage: str = 'mcap', scenario: str = 'baseline',
-             scatter_model: str | None = None) -> SimulationSummary:
+             scatter_model: str | None = None,
+             mount_seed: int | None = None) -> SimulationSummary:
     """Simulate a calibration drive past a roadside radar and write it as a rosbag2 bag.
 
     Parameters
@@ -100,7 +104,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         the storage file, plus ``ground_truth.json``, ``params.yaml`` and
         ``ground_truth_targets.npz``.
     seed : int, default=0
-        Same seed, scenario, duration and model -> identical bag contents.
+        The drive: traffic, signal timing, the calibration vehicle's route, every noise
+        draw and the radar's clock offset. Same seed, scenario, duration, model and mount
+        seed -> identical bag contents.
     duration_s : float, default=600.0
         Length of the recording [s] (10 s to 1 h); the number of passes of the calibration
         vehicle grows with it (about one a minute, at least 4, at most 15).
@@ -109,6 +115,13 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         One of :data:`SCENARIOS`.
     scatter_model : {'skin', 'interior', 'mixed'} or None
         Where on road users the radar sees them; None = :data:`DEFAULT_SCATTER_MODEL`.
+    mount_seed : int or None, default=None
+        The site's installation: None mounts the radar(s) exactly as the scenario describes
+        them; an integer moves each mount a little (position, height, pitch, roll, yaw,
+        within real installation ranges), the same way for every ``seed``. The site's
+        static scene (buildings, poles, kerbs, parked cars) belongs to the scenario alone.
+        So recordings with different seeds and the same scenario and mount seed are drives
+        past the same radar: one calibrates, another evaluates.
 
     Returns
     -------
@@ -130,14 +143,20 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         raise ConfigError(f'duration {duration_s} s is outside [10, 3600] s')
     if not isinstance(seed, int) or seed < 0:
         raise ConfigError(f'seed must be a non-negative integer, got {seed!r}')
+    if mount_seed is not None and (not isinstance(mount_seed, int) or mount_seed < 0):
+        raise ConfigError(f'mount seed must be a non-negative integer, got {mount_seed!r}')
     out = Path(out_dir)
     if out.exists():
         raise BagReadError(f'{str(out)!r} exists already; not overwriting')
     duration = float(duration_s)
     streams = np.random.SeedSequence([seed, zlib.crc32(spec.name.encode())]).spawn(10)
     rngs = [np.random.default_rng(s) for s in streams]
-    (r_mount, r_drive, r_traffic, r_scene, r_scatter, r_times, r_radar, r_gnss, r_stamps,
+    # the drive's streams; the first and fourth (once the mount and the scene) stay in the
+    # list, unused, so that every other stream of a seed is what it always was
+    (_, r_drive, r_traffic, _, r_scatter, r_times, r_radar, r_gnss, r_stamps,
      r_clock) = rngs
+    # the site's: the scene from the scenario alone, the mounts from the mount seed
+    r_scene = np.random.default_rng([_SITE_TAG, zlib.crc32(spec.name.encode())])
 
     # --- world, radar mounts, traffic --------------------------------------------------
     frame = LocalFrame.at(spec.site.lat_deg, spec.site.lon_deg)
@@ -147,8 +166,11 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
     extra_rngs = [[np.random.default_rng(s) for s in np.random.SeedSequence(
         [seed, zlib.crc32(spec.name.encode()), 1 + k]).spawn(5)]
         for k in range(len(spec.more_radars))]
-    mounts = [perturbed_mount(spec.radar, r_mount)] + [
-        perturbed_mount(m, g[0]) for m, g in zip(spec.more_radars, extra_rngs)]
+    mounts = [spec.radar, *spec.more_radars]
+    if mount_seed is not None:
+        mounts = [perturbed_mount(m, np.random.default_rng(
+            [_MOUNT_TAG, mount_seed, zlib.crc32(spec.name.encode()), k]))
+            for k, m in enumerate(mounts)]
     scene = build_scene(spec, junction, r_scene)
     log = simulate_traffic(spec, junction, duration, r_traffic, r_drive)
     templates = build_templates(log.users, model_name, r_scatter)
@@ -190,6 +212,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         truth = _truth(spec, seed, model_name, duration, frame, run.extrinsics, run.mount,
                        run.ground_z, passes, log, templates.skin_weight[0], gnss,
                        run.times.size, run.targets, epoch_ns, n_messages)
+        truth['mount_seed'] = mount_seed
         if multi:
             truth.update(radar_frame=run.frame_id, radar_topic=run.topic)
         truths[run.frame_id] = truth
@@ -207,7 +230,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         'length': veh.length, 'width': veh.width, 'height': veh.height,
         'rear_overhang': veh.rear_overhang, 'ref_height': veh.ref_height},
         header=f'Parameters for the simulated recording {out.name}: scenario '
-               f'{spec.name!r}, seed {seed}.\nThe calibration tool may use them; it never '
+               f'{spec.name!r}, seed {seed}'
+               + ('' if mount_seed is None else f', mount seed {mount_seed}')
+               + '.\nThe calibration tool may use them; it never '
                'reads ground_truth*.', radar_topic=None if multi else RADAR_TOPIC)
     for run in runs:
         path = out / targets_file(run.frame_id) if multi else paths.targets
@@ -273,7 +298,11 @@ def _write_run_targets(path: Path, run: _RadarRun, log: TrafficLog, scene: Any,
         'frame_index': targets.frame,
         'object_id': targets.object_id,
         'object_class': targets.object_class,
-        'is_calibration_vehicle': targets.object_id == 0,
+        # the targets that appear on the calibration vehicle: its wall ghosts (object 0
+        # too) lie behind building fronts, tens of metres away, and would turn any
+        # figure computed from this flag into one about the buildings
+        'is_calibration_vehicle': (targets.object_id == 0) & (
+            targets.kind != KIND_NAMES.index('ghost_wall')),
         'scatter_kind': targets.kind,
         'position_true_sensor_m': targets.position_true_m,
         'position_sensor_m': targets.position_m,

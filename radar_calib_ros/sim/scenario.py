@@ -1,8 +1,10 @@
 """Named scenarios: site, junction, radar mount, traffic and the calibration drive.
 
-Each scenario is a fixed description; the seed perturbs the radar mount a little (within
-the ranges of real installations), the signal offsets, the traffic and every noise draw,
-never the scenario's character. Sites differ on purpose: the grid convergence between
+Each scenario is a fixed description of a site: its junction, static scene and radar
+mount(s). The seed varies the drive past it (signal offsets, traffic, the calibration
+vehicle's route, every noise draw), never the site, so two seeds are two recordings of the
+same radar; a separate mount seed moves the mount a little (within the ranges of real
+installations) for another installation of the same scenario. Sites differ on purpose: the grid convergence between
 true north, the local grid and UTM ranges from ~0.3 to ~2.5 deg across them, one site is
 in the southern hemisphere with left-hand traffic.
 """
@@ -231,8 +233,8 @@ def get_scenario(name: str) -> Scenario:
 
 
 def perturbed_mount(mount: RadarMount, rng: np.random.Generator) -> RadarMount:
-    """The mount moved a little by the seed, staying inside real installation ranges
-    (height 4-9 m, pitch 3-15 deg down, roll within +-2 deg)."""
+    """The mount moved a little by a mount seed's generator, staying inside real
+    installation ranges (height 4-9 m, pitch 3-15 deg down, roll within +-2 deg)."""
     dx, dy = rng.normal(0.0, 0.6, 2)
     return replace(
         mount,

@@ -3,8 +3,9 @@
 r_i, delta_op and delta_p (method paper, "Evaluation", Table I) of the calibration
 vehicle's targets, placed in the world with the TRUE extrinsics and compared with the
 vehicle's TRUE box at each frame's true measurement time (``ground_truth_targets.npz``),
-using the box helpers of ``core/vehicle.py``. Wall ghosts are left out: they appear
-behind buildings, far from the vehicle, and no track of the vehicle would contain them.
+using the box helpers of ``core/vehicle.py``. ``is_calibration_vehicle`` leaves out the
+vehicle's wall ghosts: they appear behind buildings, far from the vehicle, and no track of
+the vehicle would contain them.
 """
 from __future__ import annotations
 
@@ -44,8 +45,7 @@ def vehicle_config(truth: dict) -> VehicleConfig:
 def metrics_at_truth(bag: Path, *, measured: bool = True) -> TruthMetrics:
     """The paper's metrics of the calibration vehicle's targets at the true calibration."""
     truth, z = load(bag)
-    kinds = list(z['kind_names'])
-    sel = z['is_calibration_vehicle'] & (z['scatter_kind'] != kinds.index('ghost_wall'))
+    sel = z['is_calibration_vehicle']
     frame = z['frame_index'][sel]
     key = 'position_sensor_m' if measured else 'position_true_sensor_m'
     rotation, translation = z['radar_rotation'], z['radar_translation_m']

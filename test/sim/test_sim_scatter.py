@@ -7,10 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from radar_calib_ros import evaluate
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.io.bag import read_recording
+from radar_calib_ros.result import load_result
 from radar_calib_ros.sim import DEFAULT_SCATTER_MODEL, KIND_NAMES, SimulationSummary, simulate
 from radar_calib_ros.sim.scatter import build_templates, check_scatter_model
 from radar_calib_ros.sim.traffic import RoadUsers
 from radar_calib_ros.errors import ConfigError
+from radar_calib_ros.types import TrackedTargets
 from sim_truth import load, metrics_at_truth
 
 INTERIOR_KINDS = ('wheel', 'wheel_house', 'underbody', 'engine', 'seat', 'mirror',
@@ -63,13 +68,39 @@ def test_models_share_the_drive(model_sims: dict[str, SimulationSummary]) -> Non
 
 def test_default_model_matches_table_one_at_the_truth(baseline_sim: SimulationSummary) -> None:
     """Paper Table I (real radars, their own calibration): r_i 60-79 %, delta_op 0.26-0.39 m,
-    delta_p 1.10-1.71 m; at the truth r_i can only be higher."""
+    delta_p 1.10-1.71 m; at the truth r_i can only be higher. Computed by ``radar-calib
+    evaluate``'s own protocol (stages 1-3, tracks within 5 m of the vehicle, merged) with
+    the ground truth as the calibration."""
     assert baseline_sim.truth['scatter_model'] == DEFAULT_SCATTER_MODEL
+    config = CalibConfig.from_file(baseline_sim.paths.params)
+    recording = read_recording(baseline_sim.paths.bag, config)
+    calibration = load_result(baseline_sim.paths.ground_truth)
+    tracked = evaluate.track_targets(recording, config)
+    full = evaluate.evaluate_tracked(recording, tracked, calibration, config)
+    # The 5 m rule also keeps road users that pull away beside the vehicle at a light or
+    # pass it (a radar sees them as one object for seconds): their targets lie metres
+    # outside the box, and at a busy two-lane junction they, not the reflections, set
+    # delta_op (Table I's delta_op says the paper's drives had almost none). The same
+    # protocol on the tracker's own tracks with the other road users' targets taken out
+    # measures where on the vehicle the radar sees it:
+    _, z = load(baseline_sim.paths.bag)
+    own = z['is_calibration_vehicle'][tracked.target_index]
+    vehicle_only = TrackedTargets(tracked.target_index[own], tracked.track_id[own])
+    ev = evaluate.evaluate_tracked(recording, vehicle_only, calibration, config)
+    p = ev.paper
+    assert p.n_targets > 2000 and p.n_frames > 300
+    assert p.inlier_ratio >= 0.6
+    assert p.outlier_distance_m <= 0.4
+    assert 1.0 <= p.closest_target_offset_m <= 1.8
+    # the protocol's own track choice found the vehicle (most of what it kept is the
+    # vehicle's) and, with the others in, r_i still reads like Table I's
+    kept = np.isin(tracked.track_id, full.vehicle_track_ids)
+    assert own[kept].mean() > 0.7
+    assert full.paper.inlier_ratio >= 0.6
+    # and the npz-based figures (true poses at the true measurement times) agree
     m = metrics_at_truth(baseline_sim.paths.bag)
-    assert m.n_targets > 2000 and m.n_frames > 500
-    assert m.inlier_ratio >= 0.6
-    assert m.outlier_distance_m <= 0.4
-    assert 1.0 <= m.closest_target_offset_m <= 1.8
+    assert abs(m.inlier_ratio - p.inlier_ratio) < 0.05
+    assert abs(m.outlier_distance_m - p.outlier_distance_m) < 0.1
 
 
 def test_vehicle_never_in_view_has_no_vehicle_targets(tmp_path: Path) -> None:
