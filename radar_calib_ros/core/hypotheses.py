@@ -272,13 +272,11 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
             f'{cfg.min_track_frames} frames)')
     by_id = {int(t.track_id): t for t in tracks}
     hyp_tracks = [by_id[h.track_id] for h in hyps]
-    # an upper bound of the passes (time gaps only): even all hypotheses together
+    # an upper bound of the passes (time gaps only): even all hypotheses together. Too few
+    # is no reason to stop here: whether any of them is the vehicle at all is for the
+    # clusters to tell (the reason must not claim a vehicle that chance tracks imitate)
     intervals = np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in hyp_tracks], np.int64)
     all_passes = merge_intervals_ns(intervals, cfg.pass_gap_s).shape[0]
-    if all_passes < cfg.min_passes:
-        raise InsufficientDataError(
-            _STAGE, f'calibration vehicle seen in {_n_passes(all_passes)}, need at least '
-            f'{cfg.min_passes}')
     translations = np.array([h.translation_m for h in hyps])
     labels = DBSCAN(eps=cfg.eps_m, min_samples=cfg.min_samples).fit_predict(translations)
     labels = labels.astype(np.int64)
@@ -290,8 +288,8 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     eligible = [c for c in clusters if c.fit is not None and c.n_passes >= cfg.min_passes
                 and c.mean_angle_deg <= cfg.max_mean_angle_deg]
     if not eligible:
-        raise InsufficientDataError(_STAGE, _no_cluster_reason(clusters, len(hyps),
-                                                               all_passes, config))
+        raise InsufficientDataError(_STAGE, _no_cluster_reason(
+            clusters, hyps, hyp_tracks, tracks, all_passes, recording, config))
     best_angle = min(c.mean_angle_deg for c in eligible)
     tied = [c for c in eligible if c.mean_angle_deg <= best_angle + cfg.angle_tie_deg]
     accepted = min(tied, key=lambda c: (-c.n_passes, _rms(c), c.mean_angle_deg))
@@ -374,10 +372,18 @@ def _rms(cluster: _Cluster) -> float:
     return cluster.fit.rms_m if cluster.fit is not None else float('inf')
 
 
-def _no_cluster_reason(clusters: Sequence[_Cluster], n_hyps: int, all_passes: int,
-                       config: CalibConfig) -> str:
-    """The plain reason why no cluster is eligible, with the numbers."""
+def _no_cluster_reason(clusters: Sequence[_Cluster], hyps: Sequence[Hypothesis],
+                       hyp_tracks: Sequence[SmoothedTrack], tracks: Sequence[SmoothedTrack],
+                       all_passes: int, recording: Recording, config: CalibConfig) -> str:
+    """The plain reason why no cluster is eligible, with the numbers.
+
+    It says the calibration vehicle was seen only when a group of agreeing hypotheses
+    follows the vehicle whenever that group's calibration puts it in view
+    (:func:`vehicle_view_passes`); a chance agreement of other road users' tracks (a
+    single track fits any stretch of the vehicle's drive) is called one.
+    """
     cfg = config.hypotheses
+    n_hyps = len(hyps)
     if not clusters:
         return (f'hypotheses do not agree: none of the {n_hyps} hypotheses (from up to '
                 f'{_n_passes(all_passes)}) has a translation within {cfg.eps_m:g} m of '
@@ -394,8 +400,95 @@ def _no_cluster_reason(clusters: Sequence[_Cluster], n_hyps: int, all_passes: in
                 f'agree in rotation (within {cfg.max_mean_angle_deg:g} deg) and fit the '
                 f'vehicle within {cfg.max_cluster_rms_m:g} m, spanning '
                 f'{_n_passes(widest.n_passes)}; need {cfg.min_passes}')
-    return (f'calibration vehicle seen in {_n_passes(widest.n_passes)}, need at least '
-            f'{cfg.min_passes}')
+    views = {c.label: vehicle_view_passes([hyp_tracks[i] for i in c.core], c.fit, tracks,
+                                          recording, config) for c in fitting
+             if c.fit is not None}
+    # agreement needs two passes: one pass alone fits any road user's track
+    credible = [c for c in fitting if c.n_passes >= 2 and _follows_vehicle(*views[c.label])]
+    if credible:
+        seen = max(credible, key=lambda c: (c.n_passes, -c.mean_angle_deg))
+        return (f'calibration vehicle seen in {_n_passes(seen.n_passes)}, need at least '
+                f'{cfg.min_passes}')
+    if widest.n_passes < 2:
+        return (f'no consistent calibration-vehicle track: none of the {n_hyps} hypotheses '
+                'agrees with one from another pass (a single pass fits any road user\'s '
+                f'track); need {cfg.min_passes} agreeing passes')
+    in_view, followed = views[widest.label]
+    return (f'no consistent calibration-vehicle track: {n_hyps} chance hypotheses from other '
+            f'road users, none agreeing across {cfg.min_passes} passes (the best group, '
+            f'{widest.core.size} track{"s" if widest.core.size != 1 else ""} in '
+            f'{_n_passes(widest.n_passes)}, would have had the vehicle in view in '
+            f'{_n_passes(in_view)} and follows it in {followed})')
+
+
+#: Below this speed the vehicle gives too few moving targets to be tracked [m/s].
+_TRACKABLE_SPEED_MPS = 1.0
+#: A group of hypotheses is taken for the vehicle when its tracks follow the vehicle in at
+#: least this share of the passes its calibration puts the vehicle in view (occlusion and
+#: stops cost a real vehicle a pass now and then; a chance match follows it once).
+_MIN_FOLLOWED_SHARE = 2.0 / 3.0
+
+
+def _follows_vehicle(in_view: int, followed: int) -> bool:
+    return followed >= 1 and followed >= _MIN_FOLLOWED_SHARE * in_view
+
+
+def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidFit,
+                        tracks: Sequence[SmoothedTrack], recording: Recording,
+                        config: CalibConfig) -> tuple[int, int]:
+    """(passes in view, passes followed) of the vehicle under a group's calibration.
+
+    The group's merged transform (levelled sensor frame -> world) places the vehicle's
+    reflection centre in the sensor's view at every pose sample. The vehicle counts as in
+    view where it moves (``_TRACKABLE_SPEED_MPS``), lies within the range at which the
+    group's own tracks saw it and within the azimuths at which any track lies; such
+    stretches at least ``hypotheses.min_track_length_m`` long are merged into passes as in
+    :func:`count_passes`. A pass is followed when one of the group's tracks overlaps it in
+    time. The vehicle's own tracks follow it in nearly every pass their calibration puts it
+    in view; other road users' tracks that happen to fit a stretch of its drive do not.
+
+    Parameters
+    ----------
+    group : sequence of SmoothedTrack
+        The tracks of the agreeing hypotheses (levelled bird's-eye view).
+    fit : registration.RigidFit
+        Their merged transform.
+    tracks : sequence of SmoothedTrack
+        Every track of the recording (the azimuths the radar sees).
+    recording : Recording
+    config : CalibConfig
+    """
+    cfg = config.hypotheses
+    vehicle = recording.vehicle
+    if not group or len(vehicle) < 2:
+        return 0, 0
+    poses = PoseSamples(vehicle.positions_m, vehicle.yaw_rad, vehicle.velocities_mps,
+                        vehicle.yaw_rate_rps, np.ones(len(vehicle), bool))
+    centre = reflection_centre_world(poses, config)[:, :2]
+    local = (centre - fit.translation_m[:2]) @ fit.rotation[:2, :2]
+    group_xy = np.concatenate([t.positions_m for t in group])
+    reach = float(np.hypot(group_xy[:, 0], group_xy[:, 1]).max())
+    seen_xy = np.concatenate([t.positions_m for t in tracks]) if tracks else group_xy
+    seen_azimuth = np.arctan2(seen_xy[:, 1], seen_xy[:, 0])
+    azimuth = np.arctan2(local[:, 1], local[:, 0])
+    speed = np.hypot(vehicle.velocities_mps[:, 0], vehicle.velocities_mps[:, 1])
+    in_view = ((np.hypot(local[:, 0], local[:, 1]) <= reach) & (speed >= _TRACKABLE_SPEED_MPS)
+               & (azimuth >= seen_azimuth.min()) & (azimuth <= seen_azimuth.max()))
+    edges = np.diff(np.concatenate([[0], in_view.astype(np.int8), [0]]))
+    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(
+        *np.diff(vehicle.positions_m[:, :2], axis=0).T))])
+    long_enough = travelled[last] - travelled[first] >= cfg.min_track_length_m
+    stretches = np.column_stack([vehicle.stamps_ns[first[long_enough]],
+                                 vehicle.stamps_ns[last[long_enough]]])
+    away = away_stamps_ns(vehicle, fit.translation_m[:2], reach + cfg.pass_margin_m)
+    passes = merge_intervals_ns(stretches, cfg.pass_gap_s, away)
+    spans = np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in group], np.int64)
+    # radar stamps onto the pose clock, as the correspondences were made
+    spans = pose_stamps_ns(spans, config.sync.time_offset)
+    followed = ((spans[None, :, 0] <= passes[:, None, 1])
+                & (spans[None, :, 1] >= passes[:, None, 0])).any(axis=1)
+    return int(passes.shape[0]), int(followed.sum())
 
 
 def _mean_pairwise_angle_deg(rotations: F64) -> float:

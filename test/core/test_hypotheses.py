@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -227,3 +228,53 @@ def test_merge_intervals_boundaries() -> None:
     np.testing.assert_array_equal(merged, [[0, 6 * s], [10 * s, 15 * s]])
     merged = hypotheses.merge_intervals_ns(intervals, 0.0, np.zeros(0, np.int64))
     np.testing.assert_array_equal(merged, [[0, 15 * s]])
+
+
+def test_vehicle_view_passes_counts_the_passes_a_group_misses() -> None:
+    # passes 0 and 1 on one lane, 2 and 3 on another: under the true calibration the
+    # vehicle is in view in all four, and its own tracks follow it in all four; a group
+    # of two of them (what a chance agreement of other road users looks like from the
+    # vehicle's side) follows it in two
+    scene = make_scene(n_passes=4, lanes=[0, 0, 1, 1])
+    vehicle, _ = _vehicle_and_other_tracks(scene)
+    corrs = hypotheses.track_correspondences(vehicle, scene.recording, scene.config)
+    fit = registration.fit_yaw_translation(np.concatenate([c.source_m for c in corrs]),
+                                           np.concatenate([c.target_m for c in corrs]))
+    assert hypotheses.vehicle_view_passes(vehicle, fit, scene.tracks, scene.recording,
+                                          scene.config) == (4, 4)
+    assert hypotheses.vehicle_view_passes([vehicle[0], vehicle[2]], fit, scene.tracks,
+                                          scene.recording, scene.config) == (4, 2)
+
+
+def test_agreement_that_misses_most_passes_in_view_is_called_chance() -> None:
+    # two tracks from two passes agree, but under their calibration the vehicle drove
+    # through the view four times: not evidence that it was seen (contrast with
+    # test_too_few_passes_exits_with_the_numbers, where it was in view only twice)
+    scene = make_scene(n_passes=4, lanes=[0, 0, 1, 1])
+    vehicle, _ = _vehicle_and_other_tracks(scene)
+    group = (vehicle[0], vehicle[2])
+    hyps = hypotheses.generate_hypotheses(group, scene.recording, scene.ground, scene.config)
+    assert len(hyps) == 2
+    with pytest.raises(InsufficientDataError,
+                       match='no consistent calibration-vehicle track: 2 chance hypotheses .* '
+                             r'in view in 4 passes and follows it in 2\)') as err:
+        hypotheses.prune_hypotheses(hyps, group, scene.recording, scene.ground, scene.config)
+    assert 'seen in' not in str(err.value)
+
+
+def test_vehicle_never_in_view_is_not_reported_as_seen(tmp_path: Path) -> None:
+    """The simulator's 'vehicle_never_in_view': other road users' tracks fit stretches of
+    the vehicle's drive by chance; the exit-1 reason must not claim the vehicle was seen."""
+    from radar_calib_ros.config import CalibConfig
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.pipeline import run_calibration
+    from radar_calib_ros.sim import simulate
+
+    sim = simulate(tmp_path / 'away', seed=1, duration_s=60.0,
+                   scenario='vehicle_never_in_view')
+    config = CalibConfig.from_file(sim.paths.params)
+    with pytest.raises(InsufficientDataError) as err:
+        run_calibration(read_recording(sim.paths.bag, config), config)
+    reason = str(err.value)
+    assert 'no consistent calibration-vehicle track' in reason
+    assert 'vehicle seen' not in reason and 'vehicle was never seen' not in reason
