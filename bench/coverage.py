@@ -19,8 +19,8 @@ lane (same arm and lane, same direction). The default ``hypotheses.min_passes`` 
 refuses it (exit 1); with ``min_passes`` = 2 it calibrates, and the bench prints its sigma
 against the full runs' and the advice calibrate turns into warnings.
 
-    .venv/bin/python bench/coverage.py [--scenarios ...] [--seeds 11 12 13 14 15]
-        [--duration 360] [--jobs 2] [--json out.json] [--no-thin]
+    .venv/bin/python bench/coverage.py [--scenarios ...] [--seeds 11 ... 16]
+        [--duration 360] [--jobs 2] [--json out.json] [--no-thin | --thin-only]
 """
 from __future__ import annotations
 
@@ -39,6 +39,9 @@ OUT = HERE / 'out'
 SCENARIOS = ('baseline', 'low_mount', 'clock_offset', 'skewed_junction', 'southern_t_junction',
              'far_from_meridian')
 GROUPS = ('horizontal', 'vertical', 'rotation')
+#: where the thin-data case looks for two passes on one lane (10-minute drives)
+THIN_SCENARIOS = ('baseline', 'skewed_junction', 'clock_offset')
+THIN_SEEDS = [1, 2, 3]
 #: probability inside +-2 sigma of a 1-D Gaussian, and the matching chi-square quantiles
 P2 = math.erf(2.0 / math.sqrt(2.0))
 CHI2_2D = -2.0 * math.log(1.0 - P2)          # closed form for 2 degrees of freedom
@@ -119,19 +122,17 @@ def run_one(scenario: str, seed: int, duration: float) -> dict[str, Any]:
 
 # --- thin data --------------------------------------------------------------------------
 
-def _same_lane_pair(passes: list[dict[str, Any]]) -> tuple[dict[str, Any], dict[str, Any]] | None:
-    """Two seen passes entering on the same lane in the same direction (same movement if
-    possible), the pair with the most targets."""
+def same_lane_pairs(passes: list[dict[str, Any]]) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+    """Pairs of seen passes entering on the same lane in the same direction, best first
+    (same movement first, then the most targets in the weaker pass)."""
     seen = [p for p in passes if p['n_targets'] >= 300]
-    best = None
+    pairs = []
     for i, a in enumerate(seen):
         for b in seen[i + 1:]:
-            if (a['entry_arm'], a['lane_in']) != (b['entry_arm'], b['lane_in']):
-                continue
-            key = (a['movement'] == b['movement'], min(a['n_targets'], b['n_targets']))
-            if best is None or key > best[0]:
-                best = (key, (a, b))
-    return None if best is None else best[1]
+            if (a['entry_arm'], a['lane_in']) == (b['entry_arm'], b['lane_in']):
+                key = (a['movement'] == b['movement'], min(a['n_targets'], b['n_targets']))
+                pairs.append((key, (a, b)))
+    return [pair for _, pair in sorted(pairs, key=lambda kp: kp[0], reverse=True)]
 
 
 def cut_recording(recording: Any, windows_ns: list[tuple[int, int]]) -> Any:
@@ -156,48 +157,57 @@ def cut_recording(recording: Any, windows_ns: list[tuple[int, int]]) -> Any:
                      recording.radar_frame_id, dict(recording.counters))
 
 
-def thin_case(scenarios: tuple[str, ...], seeds: list[int], duration: float) -> dict[str, Any]:
-    """Two passes on one lane, cut from the first 10-minute drive that has such a pair."""
+def thin_case(scenarios: tuple[str, ...], seeds: list[int], duration: float,
+              max_attempts: int = 6) -> dict[str, Any]:
+    """Two passes on one lane, cut from 10-minute drives: the first such pair (over the
+    drives and their same-lane pairs, at most ``max_attempts``) that calibrates with
+    ``min_passes`` = 2; the pairs that did not are listed with their reason."""
     from radar_calib_ros.config import CalibConfig
     from radar_calib_ros.errors import CalibrationError
     from radar_calib_ros.groundtruth import load_ground_truth
     from radar_calib_ros.io.bag import read_recording
     from radar_calib_ros.pipeline import run_calibration
 
+    attempts: list[str] = []
     for scenario in scenarios:
         for seed in seeds:
             bag = _bag(scenario, seed, duration)
             truth = load_ground_truth(bag)
             assert truth is not None
-            pair = _same_lane_pair(truth['passes'])
-            if pair is None:
+            pairs = same_lane_pairs(truth['passes'])
+            if not pairs:
                 continue
             config = CalibConfig.from_file(bag / 'params.yaml')
-            recording = read_recording(bag, config)
-            origin = int(truth['stamp_origin_ns'])
-            windows = [(origin + int(1e9 * (p['t_start_s'] - 2.0)),
-                        origin + int(1e9 * (p['t_end_s'] + 2.0))) for p in pair]
-            thin = cut_recording(recording, windows)
-            row: dict[str, Any] = {
-                'scenario': scenario, 'seed': seed,
-                'thin_passes': [{k: p[k] for k in ('index', 'entry_arm', 'lane_in', 'movement',
-                                              'heading_in_deg', 'n_targets')} for p in pair]}
-            try:
-                run_calibration(thin, config)
-                row['default'] = 'calibrated'
-            except CalibrationError as err:
-                row['default'] = f'exit 1: {err}'
             two = dataclasses.replace(config, hypotheses=dataclasses.replace(
                 config.hypotheses, min_passes=2))
-            try:
-                result = run_calibration(thin, two)
-            except CalibrationError as err:
-                row['status'] = f'exit: {err}'
+            recording = read_recording(bag, config)
+            origin = int(truth['stamp_origin_ns'])
+            for pair in pairs:
+                if len(attempts) >= max_attempts:
+                    return {'status': 'no thin case calibrated', 'attempts': attempts}
+                windows = [(origin + int(1e9 * (p['t_start_s'] - 2.0)),
+                            origin + int(1e9 * (p['t_end_s'] + 2.0))) for p in pair]
+                thin = cut_recording(recording, windows)
+                label = (f'{scenario} seed {seed} passes #{pair[0]["index"]}, '
+                         f'#{pair[1]["index"]}')
+                try:
+                    result = run_calibration(thin, two)
+                except CalibrationError as err:
+                    attempts.append(f'{label}: {err}')
+                    continue
+                row: dict[str, Any] = {
+                    'scenario': scenario, 'seed': seed, 'status': 'ok', 'attempts': attempts,
+                    'thin_passes': [{k: p[k] for k in (
+                        'index', 'entry_arm', 'lane_in', 'movement', 'heading_in_deg',
+                        'n_targets')} for p in pair]}
+                try:
+                    run_calibration(thin, config)
+                    row['default'] = 'calibrated'
+                except CalibrationError as err:
+                    row['default'] = f'exit 1: {err}'
+                row.update(assess(result, two, truth))
                 return row
-            row['status'] = 'ok'
-            row.update(assess(result, two, truth))
-            return row
-    return {'status': 'no drive with two passes on one lane'}
+    return {'status': 'no thin case calibrated', 'attempts': attempts}
 
 
 # --- main ---------------------------------------------------------------------------------
@@ -205,15 +215,22 @@ def thin_case(scenarios: tuple[str, ...], seeds: list[int], duration: float) -> 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--scenarios', nargs='+', default=list(SCENARIOS))
-    parser.add_argument('--seeds', nargs='+', type=int, default=[11, 12, 13, 14, 15])
+    parser.add_argument('--seeds', nargs='+', type=int, default=[11, 12, 13, 14, 15, 16])
     parser.add_argument('--duration', type=float, default=360.0)
     parser.add_argument('--thin-duration', type=float, default=600.0)
     parser.add_argument('--jobs', type=int, default=2)
     parser.add_argument('--json', help='write all rows here')
     parser.add_argument('--from-json', help='print the tables of an earlier --json instead')
     parser.add_argument('--no-thin', action='store_true', help='skip the thin-data case')
+    parser.add_argument('--thin-only', action='store_true',
+                        help='only (re)run the thin-data case (rows from --from-json, if any)')
     args = parser.parse_args()
-    if args.from_json:
+    if args.thin_only:
+        data = json.loads(Path(args.from_json).read_text()) if args.from_json else {'rows': []}
+        data['thin'] = thin_case(THIN_SCENARIOS, THIN_SEEDS, args.thin_duration)
+        if args.json:
+            Path(args.json).write_text(json.dumps(data, indent=1))
+    elif args.from_json:
         data = json.loads(Path(args.from_json).read_text())
     else:
         OUT.mkdir(parents=True, exist_ok=True)
@@ -221,8 +238,7 @@ def main() -> int:
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
             rows = list(pool.map(run_one, *zip(*jobs)))
             thin = None if args.no_thin else pool.submit(
-                thin_case, ('baseline', 'skewed_junction', 'clock_offset'), [1, 2, 3],
-                args.thin_duration).result()
+                thin_case, THIN_SCENARIOS, THIN_SEEDS, args.thin_duration).result()
         data = {'rows': rows, 'thin': thin}
         if args.json:
             Path(args.json).write_text(json.dumps(data, indent=1))
@@ -265,6 +281,8 @@ def print_tables(rows: list[dict[str, Any]], thin: dict[str, Any] | None) -> boo
         print(line)
     if thin is not None:
         print('\nthin data (two passes entering on one lane):')
+        for attempt in thin.get('attempts', []):
+            print(f'  (not calibrated with min_passes=2: {attempt})')
         if thin.get('status') != 'ok':
             print(f'  {thin.get("status")}')
             met = False
