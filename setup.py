@@ -27,6 +27,7 @@ setup(
         'pyproj>=3.4',
         'PyYAML>=6.0',
         'scikit-learn>=1.2',
+        'threadpoolctl>=3.1',
         'tqdm>=4.60',
         'matplotlib>=3.6',
     ],
