@@ -70,7 +70,9 @@ def main() -> int:
     from radar_calib_ros.sim import SCATTER_MODELS, SCENARIOS
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--models', nargs='+', default=list(SCATTER_MODELS))
-    parser.add_argument('--scenarios', nargs='+', default=list(SCENARIOS))
+    # a recording of several radars is calibrated by `calibrate --all-radars`, not here
+    parser.add_argument('--scenarios', nargs='+',
+                        default=[s for s in SCENARIOS if 'radars' not in s])
     parser.add_argument('--seeds', type=int, default=1)
     parser.add_argument('--duration', type=float, default=600.0)
     parser.add_argument('--jobs', type=int, default=2)

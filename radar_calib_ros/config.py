@@ -207,6 +207,9 @@ class QualityConfig:
     max_boresight_sigma_m: float = _p(
         0.05, 'warn and advise when the 1-sigma along the boresight exceeds this [m]',
         lo=0.0, hi=10.0)
+    min_vehicle_detection: float = _p(
+        0.2, 'fewest frames, of those where the calibration puts the moving vehicle in view, '
+        'that must show targets with its radial velocity near its box', lo=0.0, hi=1.0)
 
 
 _TOP_LEVEL: dict[str, tuple[str, str]] = {

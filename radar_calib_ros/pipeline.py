@@ -140,8 +140,10 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
     with stage('quality'):
+        detection = quality.check_vehicle_detection(current, recording, config)
         report = quality.assess_quality(current, refinement, recording, tracked, selection,
                                         config)
+        report.extra['vehicle_detection_ratio'] = detection
     if progress is not None:
         progress('done', 1.0)
     return CalibrationResult(current, report, recording, tracked, ground, tracks, selection,

@@ -99,3 +99,26 @@ def test_advice_for_few_passes_in_one_direction() -> None:
     report = quality.assess_quality(varied.truth, None, varied.recording, varied.tracked,
                                     _selection(varied), varied.config)
     assert not any('one direction' in a or 'Only' in a for a in report.advice)
+
+
+def test_vehicle_detection_accepts_the_truth_and_rejects_a_calibration_elsewhere() -> None:
+    """The final acceptance check: a calibration that puts the vehicle where the radar sees
+    nothing with its radial velocity is refused (exit 1), the true one passes."""
+    from radar_calib_ros.core.quality import check_vehicle_detection, vehicle_detection_ratio
+    from radar_calib_ros.errors import InsufficientDataError
+    from radar_calib_ros.types import Extrinsics
+    from refine_scene import make_scene
+
+    scene = make_scene(5, time_offset_s=0.0)
+    truth = Extrinsics(scene.truth.rotation, scene.truth.translation_m, 0.0)
+    ratio, n_frames = vehicle_detection_ratio(truth, scene.recording, scene.config)
+    assert n_frames > 50 and ratio > 0.6
+    assert check_vehicle_detection(truth, scene.recording, scene.config) == ratio
+    # the same radar rotated by 40 deg about its own position: other places, other v_r
+    c, s = np.cos(np.radians(40.0)), np.sin(np.radians(40.0))
+    turned = Extrinsics(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+                        @ truth.rotation, truth.translation_m, 0.0)
+    wrong_ratio, wrong_frames = vehicle_detection_ratio(turned, scene.recording, scene.config)
+    assert wrong_frames > 0 and wrong_ratio < 0.1
+    with pytest.raises(InsufficientDataError, match='does not explain the calibration vehicle'):
+        check_vehicle_detection(turned, scene.recording, scene.config)
