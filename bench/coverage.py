@@ -95,6 +95,10 @@ def assess(result: Any, config: Any, truth: dict[str, Any]) -> dict[str, Any]:
         m_r = float(d_w @ np.linalg.pinv(cov[:3, :3]) @ d_w)
         row['mahalanobis2'] = {'horizontal': m_h, 'rotation': m_r}
         row['covered_full'] = {'horizontal': m_h <= CHI2_2D, 'rotation': m_r <= CHI2_3D}
+        # per axis: which part of the covariance is too small or too large
+        sd = np.sqrt(np.maximum(np.diag(cov)[:6], 1e-30))
+        row['z_axes'] = {name: float(abs(v) / s) for name, v, s in zip(
+            ('rot_x', 'rot_y', 'rot_z', 'x', 'y', 'z'), np.concatenate([d_w, d_t]), sd)}
     return row
 
 
@@ -279,6 +283,13 @@ def print_tables(rows: list[dict[str, Any]], thin: dict[str, Any] | None) -> boo
             line += (f'   full covariance (chi2 {100 * P2:.2f} %): {sum(full):2d}/{len(full)} = '
                      f'{100 * sum(full) / len(full):5.1f} %')
         print(line)
+    axes = [r['z_axes'] for r in ok_rows if 'z_axes' in r]
+    if axes:
+        print('  per axis of the refinement covariance (world frame; rotation about x, y, z): '
+              'share with |error| <= 2 sigma, median |error|/sigma (0.67 if calibrated)')
+        print('   ' + '  '.join(
+            f'{k} {100 * sum(a[k] <= 2.0 for a in axes) / len(axes):.0f}% '
+            f'{statistics.median(a[k] for a in axes):.2f}' for k in axes[0]))
     if thin is not None:
         print('\nthin data (two passes entering on one lane):')
         for attempt in thin.get('attempts', []):
