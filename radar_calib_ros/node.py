@@ -10,7 +10,9 @@ ros2/geometry2 jazzy). See CONTRACT.md for the topics, services and parameters.
 from __future__ import annotations
 
 import gc
+import signal
 import threading
+import time
 from typing import Any
 
 from builtin_interfaces.msg import Time as TimeMsg
@@ -27,6 +29,7 @@ import rclpy.logging
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import NavSatFix, PointCloud2
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -35,7 +38,7 @@ from radar_calib_ros.config import CalibConfig, ParameterSpec, QosConfig, parame
 from radar_calib_ros.errors import ConfigError
 from radar_calib_ros.live import DiagnosticStatusOutput, LiveCalibrator, TransformOutput
 
-__all__ = ['CalibratorNode', 'NODE_NAME', 'main']
+__all__ = ['CalibratorNode', 'NODE_NAME', 'main', 'wait_for_callbacks']
 
 NODE_NAME = 'calibrator'
 
@@ -56,6 +59,9 @@ TF_STATIC_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
 #: Worker threads of the executor: subscriptions (one mutually exclusive group), a running
 #: calibration, a second ~/calibrate call to refuse, and ~/save_recording.
 EXECUTOR_THREADS = 4
+
+#: How long Ctrl-C waits for a cancelled calibration to reach its next stage and answer.
+SHUTDOWN_WAIT_S = 10.0
 
 #: Period of the /diagnostics update (diagnostic_updater's default is 1 s as well).
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -327,12 +333,19 @@ def status_msg(status: DiagnosticStatusOutput) -> DiagnosticStatus:
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run radar_calib_ros calibrator``.
 
-    Exit code 0 on Ctrl-C or an external shutdown, 2 when a parameter is wrong (logged as
-    fatal, naming it). The shutdown follows ros2/demos jazzy ``demo_nodes_py``: catch
-    ``KeyboardInterrupt`` and ``ExternalShutdownException``, then ``destroy_node()`` and
-    the idempotent ``rclpy.try_shutdown()``.
+    Exit code 0 on Ctrl-C (SIGINT), SIGTERM or an external shutdown, 2 when a parameter is
+    wrong (logged as fatal, naming it). The shutdown follows ros2/demos jazzy
+    ``demo_nodes_py`` (catch ``KeyboardInterrupt`` and ``ExternalShutdownException``, then
+    ``destroy_node()`` and the idempotent ``rclpy.try_shutdown()``) with one difference:
+    rclpy installs no signal handler. Its handler shuts the context down at once, under a
+    ~/calibrate callback still running on another thread, whose diagnostics, log and
+    answer then fail ("publisher's context is invalid") at exit. Here a signal is a
+    ``KeyboardInterrupt`` in the spinning thread (raised when the executor's wait returns:
+    within the 1 s diagnostics period); the calibration is cancelled and its callback
+    answers on a valid context before the node and the context go.
     """
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         node = CalibratorNode()
     except ConfigError as err:
@@ -351,10 +364,48 @@ def main(args: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        node.shutdown()
+        node.live.cancel()
         executor.shutdown()
+        wait_for_callbacks(node, executor)
+        node.shutdown()
         rclpy.try_shutdown()
     return 0
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    """SIGTERM handler: stop as on Ctrl-C (Python raises KeyboardInterrupt for SIGINT)."""
+    raise KeyboardInterrupt
+
+
+def wait_for_callbacks(node: CalibratorNode, executor: MultiThreadedExecutor,
+                       timeout_s: float = SHUTDOWN_WAIT_S) -> bool:
+    """Wait until the callbacks still running on the executor's threads have answered.
+
+    rclpy jazzy's ``Executor.shutdown`` does not wait for them (its wait is skipped once
+    ``_is_shutdown`` is set, rclpy 7.1.3 executors.py), and a Ctrl-C during a calibration
+    left the ~/calibrate callback running: destroying the node under it made the answer
+    fail with "cannot use Destroyable because destruction was requested", printed at exit.
+    The calibration was cancelled before, so it stops at its next stage; the thread pool
+    (``MultiThreadedExecutor._executor``, no public accessor) is joined only once it has,
+    so a stage that overruns ``timeout_s`` cannot hang the exit.
+
+    Returns
+    -------
+    bool
+        True when every callback has finished.
+    """
+    deadline = time.monotonic() + timeout_s
+    while node.live.calibrating and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if node.live.calibrating:
+        node.get_logger().warning(f'a calibration is still running after {timeout_s:.0f} s; '
+                                  'exiting without its answer')
+        return False
+    pool = getattr(executor, '_executor', None)
+    if pool is not None:
+        # the answers of the callbacks that just returned are sent from these threads
+        pool.shutdown(wait=True)
+    return True
 
 
 if __name__ == '__main__':

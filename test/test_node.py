@@ -28,7 +28,7 @@ pytest.importorskip('tf2_msgs.msg')
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import TransformStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.time import Time  # noqa: E402
@@ -40,7 +40,7 @@ from tf2_msgs.msg import TFMessage  # noqa: E402
 from radar_calib_ros.config import read_params_file  # noqa: E402
 from radar_calib_ros.errors import ConfigError  # noqa: E402
 from radar_calib_ros.io import messages as msgs  # noqa: E402
-from radar_calib_ros.node import LATCHED_QOS, CalibratorNode  # noqa: E402
+from radar_calib_ros.node import LATCHED_QOS, CalibratorNode, wait_for_callbacks  # noqa: E402
 from radar_calib_ros.result import load_result  # noqa: E402
 
 #: The short simulated drive the node calibrates on (the same one test_live uses).
@@ -228,16 +228,7 @@ def test_a_second_calibrate_call_is_refused_while_one_runs(tmp_path: Path) -> No
         raise ConfigError('stopped by the test')
 
     harness.node.live._run = slow_run  # noqa: SLF001 - no pipeline needed here
-    # a buffer that builds into a Recording: radar frames and a few fixes, handed to the
-    # node's logic directly (rosbags messages; the decoders read rclpy ones the same way)
-    store = msgs.get_typestore()
-    t0 = 1_720_000_000 * 10**9
-    for i in range(10):
-        stamp = t0 + i * 100_000_000
-        harness.node.live.on_radar(msgs.encode_pointcloud(
-            store, stamp, 'radar', np.full((2, 3), 10.0), np.ones(2)))
-        harness.node.live.on_navsat(msgs.encode_navsatfix(
-            store, stamp, 'gnss', 48.0 + 1e-6 * i, 11.0, 500.0))
+    _feed_small_buffer(harness)
     try:
         client = harness.helper.create_client(Trigger, '/calibrator/calibrate')
         assert client.wait_for_service(timeout_sec=10.0)
@@ -252,6 +243,59 @@ def test_a_second_calibrate_call_is_refused_while_one_runs(tmp_path: Path) -> No
         assert not first.result().success
     finally:
         gate.set()
+        harness.close()
+
+
+def _feed_small_buffer(harness: Harness) -> None:
+    """Radar frames and a few fixes, handed to the node's logic directly (rosbags messages;
+    the decoders read rclpy ones the same way): a buffer that builds into a Recording."""
+    store = msgs.get_typestore()
+    t0 = 1_720_000_000 * 10**9
+    for i in range(10):
+        stamp = t0 + i * 100_000_000
+        harness.node.live.on_radar(msgs.encode_pointcloud(
+            store, stamp, 'radar', np.full((2, 3), 10.0), np.ones(2)))
+        harness.node.live.on_navsat(msgs.encode_navsatfix(
+            store, stamp, 'gnss', 48.0 + 1e-6 * i, 11.0, 500.0))
+
+
+def test_shutdown_during_a_calibration_answers_the_caller_first(tmp_path: Path) -> None:
+    """main's Ctrl-C path: cancel, stop the executor, wait for the callbacks, destroy."""
+    harness = Harness(tmp_path)
+    started = threading.Event()
+
+    def stage_loop(recording: Any, config: Any, progress: Any = None) -> Any:
+        started.set()
+        for _ in range(1000):  # a long calibration that checks for cancellation per stage
+            progress('stage', 0.5)
+            time.sleep(0.01)
+        raise AssertionError('the calibration was not cancelled')
+
+    harness.node.live._run = stage_loop  # noqa: SLF001 - no pipeline needed here
+    _feed_small_buffer(harness)
+    try:
+        client = harness.helper.create_client(Trigger, '/calibrator/calibrate')
+        assert client.wait_for_service(timeout_sec=10.0)
+        answer = client.call_async(Trigger.Request())
+        assert started.wait(30.0)
+        harness.node.live.cancel()
+        harness.executor.shutdown()
+        # the executor's threads keep running the callback; the helper node needs a spinner
+        # of its own to receive the answer
+        spinner = SingleThreadedExecutor()
+        spinner.add_node(harness.helper)
+        thread = threading.Thread(target=spinner.spin, daemon=True)
+        thread.start()
+        try:
+            assert wait_for_callbacks(harness.node, harness.executor, timeout_s=10.0)
+            assert not harness.node.live.calibrating
+            assert wait_for(answer.done, 10.0)
+            assert not answer.result().success
+            assert 'shutting down' in answer.result().message
+        finally:
+            spinner.shutdown()
+            thread.join(10.0)
+    finally:
         harness.close()
 
 
