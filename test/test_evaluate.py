@@ -16,27 +16,10 @@ from radar_calib_ros.cli import main
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.evaluate import RangeBin
 from radar_calib_ros.groundtruth import load_ground_truth
-from radar_calib_ros.io.bag import read_recording
 from radar_calib_ros.metrics import PaperMetrics
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.result import load_result, utm_to_extrinsics, write_result_yaml
-from radar_calib_ros.sim import SimulationSummary, simulate
-
-
-@pytest.fixture(scope='module')
-def sim(tmp_path_factory: pytest.TempPathFactory) -> SimulationSummary:
-    """30 s of the baseline scenario: two passes of the calibration vehicle."""
-    return simulate(tmp_path_factory.mktemp('eval') / 'bag', seed=5, duration_s=30.0)
-
-
-@pytest.fixture(scope='module')
-def config(sim: SimulationSummary) -> CalibConfig:
-    return CalibConfig.from_file(sim.paths.params)
-
-
-@pytest.fixture(scope='module')
-def recording(sim: SimulationSummary, config: CalibConfig) -> Recording:
-    return read_recording(sim.paths.bag, config)
+from radar_calib_ros.sim import SimulationSummary
 
 
 def _calibration(truth: dict[str, Any], *, shift_m: tuple[float, float, float] = (0, 0, 0),

@@ -13,11 +13,10 @@ from radar_calib_ros import cli, evaluate, report
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import ground_plane, reflection
 from radar_calib_ros.groundtruth import load_ground_truth
-from radar_calib_ros.io.bag import read_recording
 from radar_calib_ros.pipeline import CalibrationResult
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.result import utm_to_extrinsics, write_result_yaml
-from radar_calib_ros.sim import SimulationSummary, simulate
+from radar_calib_ros.sim import SimulationSummary
 from radar_calib_ros.types import (
     Extrinsics, Hypothesis, HypothesisSelection, QualityReport, Refinement)
 
@@ -26,21 +25,6 @@ EVALUATION_FIGURES = ('bev_track.png', 'outlier_distance.png', 'closest_offset.p
                       'ground_plane.png')
 RUN_FIGURES = ('hypotheses.png', 'refinement_residuals.png', 'reflection_profile.png',
                'velocity_residuals.png')
-
-
-@pytest.fixture(scope='module')
-def sim(tmp_path_factory: pytest.TempPathFactory) -> SimulationSummary:
-    return simulate(tmp_path_factory.mktemp('report') / 'bag', seed=5, duration_s=30.0)
-
-
-@pytest.fixture(scope='module')
-def config(sim: SimulationSummary) -> CalibConfig:
-    return CalibConfig.from_file(sim.paths.params)
-
-
-@pytest.fixture(scope='module')
-def recording(sim: SimulationSummary, config: CalibConfig) -> Recording:
-    return read_recording(sim.paths.bag, config)
 
 
 @pytest.fixture(scope='module')
