@@ -36,7 +36,8 @@ from tf2_msgs.msg import TFMessage
 
 from radar_calib_ros.config import CalibConfig, ParameterSpec, QosConfig, parameter_specs
 from radar_calib_ros.errors import ConfigError
-from radar_calib_ros.live import DiagnosticStatusOutput, LiveCalibrator, TransformOutput
+from radar_calib_ros.live import (
+    DiagnosticStatusOutput, LiveCalibrator, TransformOutput, TriggerOutcome)
 
 __all__ = ['CalibratorNode', 'NODE_NAME', 'main', 'wait_for_callbacks']
 
@@ -256,23 +257,15 @@ class CalibratorNode(Node):
         if outcome.transform is not None:
             self._publish_transform(outcome.transform)
         self._publish_diagnostics()
-        response.success = outcome.success
-        response.message = outcome.message
-        return response
+        return _answer(response, outcome)
 
     def _on_reset(self, request: Trigger.Request,
                   response: Trigger.Response) -> Trigger.Response:
-        outcome = self._live.reset()
-        response.success = outcome.success
-        response.message = outcome.message
-        return response
+        return _answer(response, self._live.reset())
 
     def _on_save_recording(self, request: Trigger.Request,
                            response: Trigger.Response) -> Trigger.Response:
-        outcome = self._live.save_recording()
-        response.success = outcome.success
-        response.message = outcome.message
-        return response
+        return _answer(response, self._live.save_recording())
 
     # outputs ----------------------------------------------------------------------------
     def _publish_transform(self, transform: TransformOutput) -> None:
@@ -306,6 +299,13 @@ class CalibratorNode(Node):
         """Ask a running calibration to stop at its next stage, then destroy the node."""
         self._live.cancel()
         self.destroy_node()
+
+
+def _answer(response: Trigger.Response, outcome: TriggerOutcome) -> Trigger.Response:
+    """A Trigger response carrying a service outcome of the live logic."""
+    response.success = outcome.success
+    response.message = outcome.message
+    return response
 
 
 def transform_msg(transform: TransformOutput) -> TransformStamped:

@@ -686,6 +686,19 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     # Track sizes are counted before, so the track rule of the gate keeps its meaning.
     track_size = _track_sizes(track_ids)
     fov = _elevation_view(recording)
+
+    def linearised_at(data: _Selected, est: Extrinsics, profile: F64) -> tuple[_Model, F64]:
+        """The model linearised at ``est`` and the parameter vector of that point (each
+        round's start, and the final point for the covariance)."""
+        model = _Model(data, poses, est.rotation, est.translation_m,
+                       None if estimate_tau else est.time_offset_s, harmonics,
+                       cfg.velocity_sigma_mps, _anchor(prior_mean, start, est), prior_sigma,
+                       centre_x)
+        x = np.zeros(model.n_par)
+        if estimate_tau:
+            x[6] = est.time_offset_s
+        x[model.i_prof:] = profile
+        return model, x
     corridor = _corridor(est, candidates, times, recording, poses, config)
     candidates, track_ids = candidates[corridor], track_ids[corridor]
     times = times.subset(corridor)
@@ -715,14 +728,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                 'refine', f'only {index.size} targets within {cfg.gate_m} m of the vehicle '
                 f'box, need at least {_MIN_TARGETS}')
         data = _select(index, times.subset(keep), est, recording, poses, scatter, config, fov)
-        model = _Model(data, poses, est.rotation, est.translation_m,
-                       None if estimate_tau else est.time_offset_s, harmonics,
-                       cfg.velocity_sigma_mps, _anchor(prior_mean, start, est), prior_sigma,
-                       centre_x)
-        x0 = np.zeros(model.n_par)
-        if estimate_tau:
-            x0[6] = est.time_offset_s
-        x0[model.i_prof:] = profile
+        model, x0 = linearised_at(data, est, profile)
         fit = _solve(model, x0)
         rot, trans, tau, profile = model.unpack(fit.x)
         moved = _change(est, rot, trans, tau)
@@ -736,14 +742,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             break
     assert data is not None and model is not None and fit is not None
     # Covariance at the final solution, re-based so w = 0 is the reported rotation.
-    model = _Model(data, poses, est.rotation, est.translation_m,
-                   None if estimate_tau else est.time_offset_s, harmonics,
-                   cfg.velocity_sigma_mps, _anchor(prior_mean, start, est), prior_sigma,
-                   centre_x)
-    x_hat = np.zeros(model.n_par)
-    if estimate_tau:
-        x_hat[6] = est.time_offset_s
-    x_hat[model.i_prof:] = profile
+    model, x_hat = linearised_at(data, est, profile)
     r, j, _, jp = model.residuals(x_hat, jac=True)
     assert j is not None and jp is not None
     w = np.sqrt(_robust(r, data.index.size)[0])
