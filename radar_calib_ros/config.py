@@ -174,6 +174,8 @@ class RefineConfig:
     final: bool = _p(True, 'run the final 6-DoF + clock-offset refinement over all targets')
     gate_m: float = _p(1.5, 'targets farther than this from the vehicle box are ignored [m]',
                        lo=0.1, hi=20.0)
+    final_gate_m: float = _p(0.9, 'after the first round, targets farther than this from the '
+                             'vehicle box are ignored [m]', lo=0.1, hi=20.0)
     velocity_sigma_mps: float = _p(0.15, 'radial-velocity noise assumed in the fit [m/s]',
                                    lo=1e-3, hi=10.0)
     position_sigma_m: float = _p(0.5, 'target position scatter assumed in the fit [m]',
