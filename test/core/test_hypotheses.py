@@ -278,3 +278,42 @@ def test_vehicle_never_in_view_is_not_reported_as_seen(tmp_path: Path) -> None:
     reason = str(err.value)
     assert 'no consistent calibration-vehicle track' in reason
     assert 'vehicle seen' not in reason and 'vehicle was never seen' not in reason
+
+
+def _skin_pass(config):  # type: ignore[no-untyped-def]
+    """A car passing a radar at the origin (identity transform) 15 m off, on a straight
+    east-bound lane, and the centroid of its faces that face the radar (the cluster
+    centre of a car that reflects from its skin)."""
+    x0, x1, y0, y1 = -config.vehicle.rear_overhang, \
+        config.vehicle.length - config.vehicle.rear_overhang, \
+        -0.5 * config.vehicle.width, 0.5 * config.vehicle.width
+    centre = np.column_stack([np.linspace(-30.0, 30.0, 60), np.full(60, 15.0),
+                              np.full(60, 0.5)])
+    yaw = np.zeros(60)
+    to_radar = -centre[:, :2]
+    norm = np.hypot(to_radar[:, 0], to_radar[:, 1])
+    w_end = (y1 - y0) * np.abs(to_radar[:, 0]) / norm
+    w_side = (x1 - x0) * np.abs(to_radar[:, 1]) / norm
+    faces = centre.copy()
+    faces[:, 0] += w_end * 0.5 * (x1 - x0) * np.sign(to_radar[:, 0]) / (w_end + w_side)
+    faces[:, 1] += w_side * 0.5 * (y1 - y0) * np.sign(to_radar[:, 1]) / (w_end + w_side)
+    return centre, yaw, faces
+
+
+def test_a_car_that_reflects_from_its_skin_is_fitted_at_its_faces() -> None:
+    config = make_scene(n_passes=1).config
+    centre, yaw, faces = _skin_pass(config)
+    # the radar sees the faces: the centre assumption puts it ~1 m off, the faces' centroid
+    # (placed around that first fit) brings it back to centimetres
+    source = faces.copy()
+    naive = registration.fit_yaw_translation(source, centre)
+    chosen = hypotheses._visible_faces(source, centre, yaw, config, keep_better=True)
+    fit = registration.fit_yaw_translation(source, chosen)
+    assert np.linalg.norm(naive.translation_m[:2]) > 0.5
+    assert np.linalg.norm(fit.translation_m[:2]) < 0.1
+    assert fit.rms_m < naive.rms_m
+    # a car that reflects from inside its footprint keeps the centre
+    rng = np.random.default_rng(0)
+    interior = centre + rng.normal(0.0, 0.3, centre.shape)
+    kept = hypotheses._visible_faces(interior, centre, yaw, config, keep_better=True)
+    np.testing.assert_array_equal(kept, centre)
