@@ -10,9 +10,10 @@ calibrates each with the defaults and compares the error with the reported 1-sig
   rotation    angle   <= 2 sigma_rotation (sqrt of the trace of the rotation covariance)
 
 The issue's target is 90-98 % per group. Those scalar sigmas are radii: for a 2-D or 3-D
-error they cover more than 95 %, so the bench also prints the stricter test with the full
-covariance of the final refinement: the squared Mahalanobis distance of the horizontal
-(2-D) and rotation (3-D) error against the chi-square quantile of the same 95.45 %.
+error they cover more than 95 % by construction, so the target is judged for the horizontal
+(2-D) and rotation (3-D) groups on the 2-sigma region of the full covariance of the final
+refinement: the squared Mahalanobis distance of the error against the chi-square quantile
+of the same 95.45 %. Both tests are printed.
 
 Then a thin-data case: one 10-minute drive cut down to two passes entering on the same
 lane (same arm and lane, same direction). The default ``hypotheses.min_passes`` = 3
@@ -94,6 +95,11 @@ def assess(result: Any, config: Any, truth: dict[str, Any]) -> dict[str, Any]:
         m_h = float(d_t[:2] @ np.linalg.pinv(cov[3:5, 3:5]) @ d_t[:2])
         m_r = float(d_w @ np.linalg.pinv(cov[:3, :3]) @ d_w)
         row['mahalanobis2'] = {'horizontal': m_h, 'rotation': m_r}
+        row['error_local'] = [float(v) for v in np.concatenate([d_w, d_t])]
+        row['covariances'] = {k: np.asarray(result.refinement.diagnostics[k]).tolist()
+                              for k in ('covariance_passes', 'covariance_bands')
+                              if k in result.refinement.diagnostics}
+        row['n_passes_refine'] = int(result.refinement.n_passes)
         row['covered_full'] = {'horizontal': m_h <= CHI2_2D, 'rotation': m_r <= CHI2_3D}
         # per axis: which part of the covariance is too small or too large
         sd = np.sqrt(np.maximum(np.diag(cov)[:6], 1e-30))
@@ -270,19 +276,28 @@ def print_tables(rows: list[dict[str, Any]], thin: dict[str, Any] | None) -> boo
     n = len(ok_rows)
     print(f'\n{n} of {len(rows)} runs calibrated; coverage of the true error by 2 sigma '
           '(target 90-98 %):')
+    # The target is judged per group on its 2-sigma region: the 95.45 % ellipse / ellipsoid
+    # of the reported covariance for the 2-D horizontal and 3-D rotation errors (a radius
+    # of 2 sqrt(trace) covers ~98-99 % of a calibrated 2-D / 3-D error by construction),
+    # the +-2 sigma interval for the 1-D vertical error.
     met = n >= 30
+    verdicts = []
     for g in GROUPS:
         k = sum(r['covered'][g] for r in ok_rows)
         frac = k / n if n else math.nan
-        met &= 0.90 <= frac <= 0.98
         zs = [r['z'][g] for r in ok_rows]
         line = (f'  {g:<11} quality sigma: {k:2d}/{n} = {100 * frac:5.1f} %   median '
                 f'|error|/sigma {statistics.median(zs) if zs else math.nan:.2f}')
         full = [r['covered_full'][g] for r in ok_rows if g in r.get('covered_full', {})]
         if full:
+            frac = sum(full) / len(full)
             line += (f'   full covariance (chi2 {100 * P2:.2f} %): {sum(full):2d}/{len(full)} = '
-                     f'{100 * sum(full) / len(full):5.1f} %')
+                     f'{100 * frac:5.1f} %')
+        ok = 0.90 <= frac <= 0.98
+        met &= ok
+        verdicts.append(f'{g} {100 * frac:.1f} % {"ok" if ok else "NOT in 90-98 %"}')
         print(line)
+    print('  judged: ' + ', '.join(verdicts))
     axes = [r['z_axes'] for r in ok_rows if 'z_axes' in r]
     if axes:
         print('  per axis of the refinement covariance (world frame; rotation about x, y, z): '

@@ -182,6 +182,10 @@ class RefineConfig:
                                  lo=1e-3, hi=10.0)
     profile_harmonics: int = _p(4, 'Fourier order of the reflection profile over aspect angle',
                                 lo=0, hi=8)
+    profile_range_terms: str = _p(
+        'depth', 'how the reflection profile may change with range: only its depth along the '
+        "line of sight ('depth') or every horizontal coefficient ('full')",
+        choices=('depth', 'full'))
     max_iterations: int = _p(5, 'gate / re-fit rounds of the final refinement', lo=1, hi=50)
     range_sigma_m: float = _p(0.15, 'radar range noise (1 sigma) [m]', lo=1e-4, hi=10.0)
     azimuth_sigma_deg: float = _p(0.3, 'radar azimuth noise (1 sigma) [deg]', lo=1e-4, hi=20.0)

@@ -227,7 +227,8 @@ class _Model:
 
     def __init__(self, data: _Selected, poses: _Poses, rotation0: F64, translation0: F64,
                  tau_fixed: float | None, harmonics: int, velocity_sigma: float,
-                 prior_mean: F64, prior_sigma: F64, centre_x_m: float) -> None:
+                 prior_mean: F64, prior_sigma: F64, centre_x_m: float,
+                 range_terms: str = 'depth') -> None:
         self.data = data
         self.xc = centre_x_m
         self.poses = poses
@@ -237,8 +238,10 @@ class _Model:
         self.k = harmonics
         self.sv = velocity_sigma
         self.i_prof = 6 if tau_fixed is not None else 7
-        # the profile plus one range slope of its depth mode (see ``geometry``)
-        self.n_par = self.i_prof + reflection.n_coefficients(harmonics) + 1
+        # the profile plus its range slopes (see ``geometry``)
+        self.range_terms = range_terms
+        self.n_range = n_range_terms(harmonics, range_terms)
+        self.n_par = self.i_prof + reflection.n_coefficients(harmonics) + self.n_range
         self.r_ref = float(np.median(np.linalg.norm(data.sensor_m[:, :2], axis=1)))
         self.prior_mean = prior_mean      # (n_par,) NaN = no prior
         self.prior_sigma = prior_sigma
@@ -273,11 +276,17 @@ class _Model:
         # range: measured on the simulator it halves the largest horizontal error (interior
         # model 22 -> 10 cm) at no cost elsewhere.
         rho = np.hypot(centre_los[:, 0], centre_los[:, 1]) / self.r_ref - 1.0
-        ca, sa = np.cos(aspect), np.sin(aspect)
-        extra = np.zeros((basis.shape[0], 3, 1))
-        extra[:, 0, 0], extra[:, 1, 0] = -ca * rho, -sa * rho
-        d_extra = np.zeros_like(extra)
-        d_extra[:, 0, 0], d_extra[:, 1, 0] = sa * rho, -ca * rho
+        if self.range_terms == 'full':
+            range_basis = basis[:, :, :self.n_range]
+            d_range_basis = d_basis[:, :, :self.n_range]
+        else:
+            ca, sa = np.cos(aspect), np.sin(aspect)
+            range_basis = np.zeros((basis.shape[0], 3, 1))
+            range_basis[:, 0, 0], range_basis[:, 1, 0] = -ca, -sa
+            d_range_basis = np.zeros_like(range_basis)
+            d_range_basis[:, 0, 0], d_range_basis[:, 1, 0] = sa, -ca
+        extra = range_basis * rho[:, None, None]
+        d_extra = d_range_basis * rho[:, None, None]
         basis = np.concatenate([basis, extra], axis=2)
         d_basis = np.concatenate([d_basis, d_extra], axis=2)
         offset = basis @ prof
@@ -304,7 +313,7 @@ class _Model:
                 'd_basis': d_basis, 'offset': offset, 'rz_offset': rz_offset, 'rel': rel,
                 'err': err, 'point_velocity': point_velocity, 'range': rng, 'unit': unit,
                 'v_pred': v_pred, 'c': c, 's': s, 'centre_los': centre_los,
-                'unit_v': unit_v, 'dist_v': dist_v, 'rho': rho}
+                'unit_v': unit_v, 'dist_v': dist_v, 'rho': rho, 'range_basis': range_basis}
 
     def residuals(self, x: F64, jac: bool) -> tuple[F64, F64 | None, F64, F64 | None]:
         """Data residuals (3n position + n velocity, whitened and information-weighted)
@@ -338,11 +347,11 @@ class _Model:
         dalpha_dt = np.column_stack([cl[:, 1] / rho2, -cl[:, 0] / rho2, np.zeros(n)])
         de[:, 0, 3] = de[:, 1, 4] = de[:, 2, 5] = 1.0
         de[:, :, 3:6] -= rz_dm[:, :, None] * dalpha_dt[:, None, :]
-        # the range slope of the depth: its offset d1 rho (-cos a, -sin a) moves with rho
+        # the range slopes: their offset rho B(a) q moves with rho
         rho_h = np.sqrt(rho2)
-        ca, sa = np.cos(g['aspect']), np.sin(g['aspect'])
-        d1 = x[-1]
-        depth_w = np.column_stack([-(c * ca - s * sa), -(s * ca + c * sa), np.zeros(n)]) * d1
+        slope = g['range_basis'] @ x[self.n_par - self.n_range:]
+        depth_w = np.column_stack([c * slope[:, 0] - s * slope[:, 1],
+                                   s * slope[:, 0] + c * slope[:, 1], slope[:, 2]])
         drho_dt = (np.column_stack([-cl[:, 0], -cl[:, 1], np.zeros(n)])
                    / (rho_h * self.r_ref)[:, None])
         de[:, :, 3:6] -= depth_w[:, :, None] * drho_dt[:, None, :]
@@ -371,10 +380,10 @@ class _Model:
         dd = np.zeros((n, 3, n_par))
         dd[:, 0:2, 0:3] = de[:, 0:2, 0:3]
         dmz = dm[:, 2]
-        dd[:, 2, 3:6] = dmz[:, None] * dalpha_dt
+        dd[:, 2, 3:6] = dmz[:, None] * dalpha_dt + depth_w[:, 2, None] * drho_dt
         dd[:, 2, 5] -= 1.0
         if self.tau_fixed is None:
-            dd[:, 2, 6] = g['vel'][:, 2] + dmz * dalpha_dtau
+            dd[:, 2, 6] = g['vel'][:, 2] + dmz * dalpha_dtau + depth_w[:, 2] * drho_dtau
         dd[:, 2, ip:] = basis[:, 2, :]
         dvp = np.zeros((n, 3, n_par))
         # V_pt = V + rate z x (x - P): only the horizontal lever arm matters
@@ -395,6 +404,12 @@ class _Model:
         j_data = np.concatenate([j_pos.reshape(3 * n, n_par), j_vel])
         j_prior = np.diag(1.0 / self.prior_sigma)[has_prior]
         return r_data, j_data, r_prior, j_prior
+
+
+def n_range_terms(harmonics: int, range_terms: str) -> int:
+    """Number of range-slope coefficients after the profile: one for the depth mode, or
+    one per horizontal profile coefficient (a_0..a_K, b_1..b_K)."""
+    return 2 * harmonics + 1 if range_terms == 'full' else 1
 
 
 def _robust(r: F64, n_targets: int) -> tuple[F64, float]:
@@ -735,7 +750,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         model = _Model(data, poses, est.rotation, est.translation_m,
                        None if estimate_tau else est.time_offset_s, harmonics,
                        cfg.velocity_sigma_mps, _anchor(prior_mean, start, est), prior_sigma,
-                       centre_x)
+                       centre_x, cfg.profile_range_terms)
         x = np.zeros(model.n_par)
         if estimate_tau:
             x[6] = est.time_offset_s
@@ -794,7 +809,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     row_band = np.concatenate([np.repeat(band, 3), band])
     pb = uncertainty.pass_jackknife_covariance(j * w[:, None], r * w, row_band, jp.T @ jp,
                                                prior_term=False)
-    covariance = uncertainty.combined_covariance(pc, pb)
+    covariance = uncertainty.shrink_correlations(uncertainty.combined_covariance(pc, pb),
+                                                 pc.n_passes)
     cov7 = np.zeros((7, 7))
     if estimate_tau:
         cov7[:] = covariance[:7, :7]
@@ -803,13 +819,16 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
                                config, fit, rounds, scatter)
     diagnostics.update({
-        'depth_range_slope_m': float(profile[-1]),
+        'range_slopes_m': [float(v) for v in profile[reflection.n_coefficients(harmonics):]],
         'depth_reference_range_m': model.r_ref,
         'elevation_view_deg': [math.degrees(fov[0]), math.degrees(fov[1])],
         'height_used_fraction': float(np.mean(data.vertical_ok)),
         'reflection_height_prior_m': [config.refine.reflection_height_m,
                                       config.refine.reflection_height_sigma_m],
         'range_band_t_scale': pb.t_scale,
+        # the two jackknifes behind the reported covariance (7x7 blocks, as cov7)
+        'covariance_passes': pc.covariance[:7, :7] if estimate_tau else pc.covariance[:6, :6],
+        'covariance_bands': pb.covariance[:7, :7] if estimate_tau else pb.covariance[:6, :6],
     })
     return Refinement(extrinsics=est, covariance=cov7, n_targets=int(data.index.size),
                       n_passes=pc.n_passes,
@@ -830,7 +849,8 @@ def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F6
     """Prior means (NaN = none) and sigmas of all parameters (see the module docstring)."""
     veh = config.vehicle
     i_prof = 7 if estimate_tau else 6
-    n_par = i_prof + reflection.n_coefficients(harmonics) + 1
+    n_range = n_range_terms(harmonics, config.refine.profile_range_terms)
+    n_par = i_prof + reflection.n_coefficients(harmonics) + n_range
     mean = np.full(n_par, np.nan)
     sigma = np.ones(n_par)
     if estimate_tau:
@@ -850,7 +870,8 @@ def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F6
     prof_sigma[idx['c0']] = config.refine.reflection_height_sigma_m
     mean[i_prof:i_prof + prof_mean.size] = prof_mean
     sigma[i_prof:i_prof + prof_mean.size] = prof_sigma
-    mean[-1], sigma[-1] = 0.0, 1.0     # range slope of the depth: metres per unit of range
+    # range slopes: metres per unit of relative range
+    mean[n_par - n_range:], sigma[n_par - n_range:] = 0.0, 1.0
     return mean, sigma
 
 

@@ -107,9 +107,10 @@ def pass_jackknife_covariance(jacobian: F64, residuals: F64, pass_id: I64,
 
 
 def combined_covariance(passes: PassCovariance, bands: PassCovariance,
-                        block: tuple[int, ...] = (3, 4, 6)) -> F64:
-    """The reported covariance: agreement across passes or, for the horizontal translation
-    and the clock offset, across range bands, whichever disagrees more.
+                        block: tuple[int, ...] = (2, 3, 4, 6)) -> F64:
+    """The reported covariance: agreement across passes, raised toward the agreement across
+    range bands for yaw, the horizontal translation and the clock offset where the bands
+    disagree more.
 
     The pass jackknife cannot see an error every pass shares. The one that matters here is
     range-dependent: which parts of a car are seen (signal strength, the elevation field of
@@ -118,21 +119,45 @@ def combined_covariance(passes: PassCovariance, bands: PassCovariance,
     boresight and, through the distance travelled, against the clock offset (measured on
     the simulator's skin model: 5-18 cm while the passes agreed to 2-6 cm). Leaving out one
     range band at a time exposes it. Both jackknifes estimate the same error from two
-    groupings of the data, so the block takes the larger in every direction rather than
-    their sum (the sum covered all 27 simulator runs with errors at 0.3x the reported 2
-    sigma; the larger is calibrated: median error at 0.3-0.4x, as expected). Only that
-    block (indices into the parameter vector) is concerned: for pitch and height, leaving
-    out a band removes range leverage, and the band jackknife would report that loss of
-    leverage (0.3-0.8 deg, 30-50 cm measured) rather than a disagreement.
+    groupings of the data, and the band jackknife also counts the range leverage a band
+    takes with it, so in every direction where the bands disagree more the variance is
+    raised halfway to theirs. Measured over 33 simulated runs (2-D / 3-D 95 % ellipsoids):
+    the pass jackknife alone covered 91 % of the horizontal and 88 % of the rotation
+    errors, the larger of the two 100 % (horizontal median error at 0.49 sigma: too
+    wide), halfway 97 % and 94 %. Yaw is in the block because a range-dependent reflection
+    depth turns the bearing as well as the position; roll and pitch are not: for them
+    leaving out a band removes range leverage, and the band jackknife would report that
+    loss of leverage (0.3-0.8 deg, 30-50 cm measured) rather than a disagreement.
     """
     out = passes.covariance.copy()
     idx = np.array([i for i in block if i < out.shape[0]])
-    # in every direction of the block the larger of the two variances: add the positive
-    # part of the difference (a positive semidefinite update keeps the whole matrix valid)
+    # in every direction of the block halfway to the larger of the two variances: add half
+    # the positive part of the difference (a positive semidefinite update keeps the whole
+    # matrix valid)
     diff = bands.covariance[np.ix_(idx, idx)] - out[np.ix_(idx, idx)]
     values, vectors = np.linalg.eigh(0.5 * (diff + diff.T))
-    out[np.ix_(idx, idx)] += (vectors * np.clip(values, 0.0, None)) @ vectors.T
+    out[np.ix_(idx, idx)] += 0.5 * (vectors * np.clip(values, 0.0, None)) @ vectors.T
     return out
+
+
+def shrink_correlations(covariance: F64, n_groups: int, block: int = 3) -> F64:
+    """Covariance with its correlations shrunk toward zero, variances kept.
+
+    A jackknife over G groups has G - 1 degrees of freedom: with four or five passes the
+    3x3 rotation block is estimated from three or four difference vectors, its shape is
+    noise, and it is nearly singular in the directions no pass happened to disagree in
+    (measured on the simulator: only 79 % of 33 rotation errors inside the 3-D 95 %
+    ellipsoid although each axis alone was covered 91-97 % of the time). The per-axis
+    variances are the well-estimated part; the correlations are kept with the weight
+    (G - 1) / (G - 1 + block), the usual shrinkage toward the diagonal when the sample
+    is not much larger than the dimension.
+    """
+    cov = np.asarray(covariance, float)
+    if n_groups <= 1:
+        return cov.copy()
+    keep = (n_groups - 1) / (n_groups - 1 + block)
+    d = np.diag(np.diag(cov))
+    return d + keep * (cov - d)
 
 
 def _inverse(matrix: F64) -> F64:

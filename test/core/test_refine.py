@@ -15,7 +15,7 @@ from refine_scene import errors, make_scene
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import refine, reflection, uncertainty
 from radar_calib_ros.errors import InsufficientDataError
-from radar_calib_ros.types import TrackedTargets
+from radar_calib_ros.types import Targets, TrackedTargets
 
 # A profile (order 4) with every kind of term (depth mode, front/rear asymmetry);
 # c0 = 0.0 matches the default height prior (0.35 m above the road, ref_height 0.35 m).
@@ -65,9 +65,11 @@ def test_aspect_angle_convention() -> None:
 
 # --- the model ----------------------------------------------------------------------------
 
-def test_analytic_jacobian_matches_finite_differences() -> None:
+@pytest.mark.parametrize('range_terms', ['depth', 'full'])
+def test_analytic_jacobian_matches_finite_differences(range_terms: str) -> None:
     scene = make_scene(3, model='interior', n_passes=4)
-    cfg = scene.config
+    cfg = dataclasses.replace(scene.config, refine=dataclasses.replace(
+        scene.config.refine, profile_range_terms=range_terms))
     t0 = int(scene.recording.vehicle.stamps_ns[0])
     poses = refine._Poses.from_track(scene.recording.vehicle, t0, cfg.sync.max_pose_gap)
     index = scene.vehicle_target_index[::7]
@@ -79,7 +81,9 @@ def test_analytic_jacobian_matches_finite_differences() -> None:
                           np.array([1.0, 0.5, 0.3]), cfg, (-1.5, 1.5))
     mean, sigma = refine._priors(cfg, 2, True)
     model = refine._Model(data, poses, scene.truth.rotation, scene.truth.translation_m, None,
-                          2, 0.15, mean, sigma, 1.45)
+                          2, 0.15, mean, sigma, 1.45, range_terms)
+    assert model.n_par == 7 + reflection.n_coefficients(2) + (5 if range_terms == 'full'
+                                                              else 1)
     fov = refine._elevation_view(scene.recording)
     assert -np.pi / 2 < fov[0] < fov[1] < np.pi / 2
     rng = np.random.default_rng(1)
@@ -266,6 +270,31 @@ def test_jackknife_of_a_linear_mean_is_the_classic_one() -> None:
     np.testing.assert_allclose(pc.influences[:, 0], loo - values.mean(), atol=1e-12)
 
 
+def test_shrinking_correlations_keeps_variances_and_fills_thin_directions() -> None:
+    # three passes' worth of disagreement: a rank-deficient, nearly singular 3x3 block
+    rng = np.random.default_rng(0)
+    diffs = rng.normal(size=(2, 3))
+    cov = diffs.T @ diffs + 1e-9 * np.eye(3)
+    shrunk = uncertainty.shrink_correlations(cov, n_groups=3)
+    np.testing.assert_allclose(np.diag(shrunk), np.diag(cov))
+    assert np.linalg.cond(shrunk) < 1e-3 * np.linalg.cond(cov)
+    # many groups: the correlations are kept almost whole
+    many = uncertainty.shrink_correlations(cov, n_groups=300)
+    np.testing.assert_allclose(many, cov, atol=0.02 * np.abs(cov).max())
+    np.testing.assert_array_equal(uncertainty.shrink_correlations(cov, n_groups=1), cov)
+
+
+def test_range_bands_raise_the_horizontal_variance_halfway() -> None:
+    def pc(cov):  # type: ignore[no-untyped-def]
+        return uncertainty.PassCovariance(np.asarray(cov, float), np.zeros((0, 7)), 5, 1.0)
+    passes = np.diag([1.0, 1.0, 1.0, 4.0, 4.0, 1.0, 1.0])
+    bands = np.diag([9.0, 9.0, 9.0, 16.0, 1.0, 9.0, 9.0])
+    out = uncertainty.combined_covariance(pc(passes), pc(bands))
+    # yaw, x and the clock offset halfway up; y, where the passes disagree more, stays;
+    # roll, pitch and the height are never taken from the bands (they lose range leverage)
+    np.testing.assert_allclose(np.diag(out), [1.0, 1.0, 5.0, 10.0, 4.0, 1.0, 5.0])
+
+
 # --- failure ------------------------------------------------------------------------------
 
 def test_too_few_targets_near_the_vehicle_raise() -> None:
@@ -285,3 +314,47 @@ def test_clock_offset_can_be_fixed() -> None:
     assert ref.extrinsics.time_offset_s == 0.0
     assert ref.covariance[6, 6] == 0.0
     assert errors(ref.extrinsics, scene.truth)['horizontal'] < 1e-3
+
+
+def _with_queued_neighbour(scene, gap_m: float):  # type: ignore[no-untyped-def]
+    """The scene plus a car queued ``gap_m`` ahead of the vehicle's front bumper in its
+    first pass: copies of the vehicle's targets moved forward by a car length plus the gap,
+    in the vehicle's own track (the tracker merged the two cars)."""
+    rec = scene.recording
+    first = scene.vehicle_target_index[scene.pass_of_target[scene.vehicle_target_index] == 0]
+    stamps = rec.frame_stamps_ns[rec.targets.frame_index[first]]
+    t0 = int(rec.vehicle.stamps_ns[0])
+    poses = refine._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
+    times = refine._Times.of(rec, first, 0.0, t0)
+    _, yaw, _, _, _ = times.poses(poses, scene.truth.time_offset_s)
+    world = scene.truth.apply(rec.targets.positions_m[first])
+    shift = scene.config.vehicle.length + gap_m
+    world[:, 0] += shift * np.cos(yaw)
+    world[:, 1] += shift * np.sin(yaw)
+    assert stamps.size > 100
+    targets = Targets(np.vstack([rec.targets.positions_m, scene.truth.inverse_apply(world)]),
+                      np.concatenate([rec.targets.radial_velocity_mps,
+                                      rec.targets.radial_velocity_mps[first]]),
+                      np.concatenate([rec.targets.frame_index, rec.targets.frame_index[first]]))
+    copies = np.arange(len(rec.targets), len(targets))
+    owner = dict(zip(scene.tracked.target_index.tolist(), scene.tracked.track_id.tolist()))
+    tracked = TrackedTargets(np.concatenate([scene.tracked.target_index, copies]),
+                             np.concatenate([scene.tracked.track_id,
+                                             [owner[int(i)] for i in first]]))
+    return dataclasses.replace(scene, recording=dataclasses.replace(rec, targets=targets),
+                               tracked=tracked), copies
+
+
+def test_a_queued_neighbour_merged_into_the_vehicle_track_is_gated_out() -> None:
+    scene = make_scene(11, model='interior', geometry='diverse')
+    queued, copies = _with_queued_neighbour(scene, gap_m=1.0)
+    ref = _run(queued)
+    used = ref.diagnostics['residuals']['target_index']
+    assert np.isin(copies, used).sum() == 0
+    assert errors(ref.extrinsics, scene.truth)['horizontal'] < 0.1
+    # with the wide first-round gate kept to the end, the neighbour's rear is fitted too
+    wide = dataclasses.replace(queued.config, refine=dataclasses.replace(
+        queued.config.refine, final_gate_m=queued.config.refine.gate_m))
+    ref_wide = refine.refine_extrinsics(queued.initial, queued.recording, queued.tracked,
+                                        queued.selection, wide)
+    assert np.isin(copies, ref_wide.diagnostics['residuals']['target_index']).sum() > 20
