@@ -55,6 +55,7 @@ def run_one(scenario: str, model: str, seed: int, duration: float) -> dict[str, 
     sigma = cal['quality']['sigma']
     row['sigma'] = sigma
     row['passes'] = cal['quality'].get('passes')
+    row['headings_deg'] = cal['quality'].get('pass_headings_deg') or []
     row['advice'] = cal['quality'].get('advice')
     f = row['final']
     row['covered'] = {
@@ -96,9 +97,20 @@ def _cm(row: dict[str, Any], stage: str) -> str:
     return f'{100 * e["horizontal_m"]:6.1f}{100 * e["vertical_m"]:6.1f}{e["rotation_deg"]:5.2f}'
 
 
+def _headings(row: dict[str, Any]) -> str:
+    """The passes' directions of travel as compass initials (N, SE, ...), each once."""
+    import math
+
+    from radar_calib_ros.core.uncertainty import compass_name
+    names = sorted({''.join(w[0].upper() for w in compass_name(math.radians(h)).split('-'))
+                    for h in row.get('headings_deg') or []})
+    return ','.join(names) or '-'
+
+
 def _print(rows: list[dict[str, Any]]) -> None:
     print(f'{"scenario":<28}{"model":<9}{"stage6 h/v cm, rot":>18}{"stage7":>17}'
-          f'{"final":>17}{"dt ms":>7}{"sig al/ac cm":>14}{"cov":>5}{"pass":>5}{"time s":>8}')
+          f'{"final":>17}{"dt ms":>7}{"sig al/ac cm":>14}{"cov":>5}{"pass":>5}{"time s":>8}'
+          '  headings')
     for r in rows:
         if r['status'] != 'ok':
             print(f'{r["scenario"]:<28}{r["model"]:<9}{r["status"]}')
@@ -109,7 +121,7 @@ def _print(rows: list[dict[str, Any]]) -> None:
         print(f'{r["scenario"]:<28}{r["model"]:<9}{_cm(r, "hypotheses")}{_cm(r, "polygon")}'
               f'{_cm(r, "final")}{"" if dt is None else f"{1000 * dt:7.1f}"}'
               f'{100 * s["along_boresight_m"]:7.1f}{100 * s["across_boresight_m"]:7.1f}'
-              f'{cov:>5}{r["passes"]!s:>5}{r["time_s"]:8.1f}')
+              f'{cov:>5}{r["passes"]!s:>5}{r["time_s"]:8.1f}  {_headings(r)}')
     print()
     print('per model (final): horizontal median/max [cm], vertical max [cm], rotation '
           'median/max [deg], 2-sigma coverage h/v/rot; targets: h median <= 5, max <= 10, '
@@ -131,6 +143,12 @@ def _print(rows: list[dict[str, Any]]) -> None:
               f'{max(h):6.1f}  v max {max(v):6.1f}  rot median {statistics.median(rot):.3f} '
               f'max {max(rot):.3f}  coverage {cov["horizontal"]:.0%}/{cov["vertical"]:.0%}/'
               f'{cov["rotation"]:.0%}  ({len(ok)} runs)')
+        sig_al = [100 * r['sigma']['along_boresight_m'] for r in ok]
+        sig_ac = [100 * r['sigma']['across_boresight_m'] for r in ok]
+        print(f'  {model:<9}{"":<11} v median {statistics.median(v):6.1f}  reported 1-sigma '
+              f'along / across the boresight median {statistics.median(sig_al):.1f} / '
+              f'{statistics.median(sig_ac):.1f} cm, max {max(sig_al):.1f} / {max(sig_ac):.1f}; '
+              f'passes median {statistics.median(r["passes"] or 0 for r in ok):g}')
 
 
 if __name__ == '__main__':
