@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from sklearn.cluster import DBSCAN
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import registration
-from radar_calib_ros.core.vehicle import box_limits
+from radar_calib_ros.core.vehicle import box_limits, vehicle_to_world, world_to_vehicle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.types import (
@@ -34,16 +34,18 @@ _STAGE = 'hypotheses'
 
 @dataclass(frozen=True, slots=True)
 class Correspondences:
-    """Track positions paired in time with the vehicle's reflection centre.
+    """Track positions paired in time with where the vehicle is assumed to reflect.
 
     source_m : (k, 3) levelled sensor frame (x, y, height); target_m : (k, 3) world;
-    stamps_ns : (k,) radar stamps (without any offset).
+    stamps_ns : (k,) radar stamps (without any offset); yaw_rad : (k,) the vehicle's
+    heading at those stamps.
     """
 
     track_id: int
     source_m: F64
     target_m: F64
     stamps_ns: I64
+    yaw_rad: F64
 
 
 def pose_stamps_ns(stamps_ns: I64, time_offset_s: float) -> I64:
@@ -78,19 +80,15 @@ def reflection_centre_world(poses: PoseSamples, config: CalibConfig) -> F64:
 
 
 def track_correspondences(tracks: Sequence[SmoothedTrack], recording: Recording,
-                          config: CalibConfig, faces: bool | None = False,
-                          ) -> list[Correspondences]:
-    """Correspondences of every track long enough to make a hypothesis.
+                          config: CalibConfig) -> list[Correspondences]:
+    """Correspondences with the footprint's centre of every track long enough to make a
+    hypothesis (:func:`facing_radar` moves them to the faces that face the radar).
 
     Poses are interpolated to the radar stamps plus ``sync.time_offset`` (never the nearest
     sample: at 15 m/s, 10 ms is 15 cm). Correspondences whose pose is invalid (outside the
     pose stream, across a gap) or farther than ``hypotheses.max_time_gap_s`` from a pose
     sample are dropped; a track is skipped when fewer than ``min_track_frames`` remain or
     it travelled less than ``min_track_length_m``.
-
-    ``faces`` picks where the vehicle is assumed to reflect (see
-    :func:`_visible_faces`): the footprint's centre (False), the centroid of the faces
-    that face the radar (True), or, per track, whichever its own fit explains better (None).
     """
     cfg = config.hypotheses
     kept = [t for t in tracks if t.stamps_ns.size >= cfg.min_track_frames
@@ -112,18 +110,16 @@ def track_correspondences(tracks: Sequence[SmoothedTrack], recording: Recording,
         if ok.sum() < cfg.min_track_frames:
             continue
         source = np.column_stack([t.positions_m, t.heights_m])[ok]
-        target = centre[sl][ok]
-        if faces is not False:
-            target = _visible_faces(source, target, poses.yaw_rad[sl][ok], config,
-                                    keep_better=faces is None)
-        out.append(Correspondences(int(t.track_id), source, target, t.stamps_ns[ok]))
+        out.append(Correspondences(int(t.track_id), source, centre[sl][ok], t.stamps_ns[ok],
+                                   poses.yaw_rad[sl][ok]))
     return out
 
 
-def _visible_faces(source: F64, centre: F64, yaw: F64, config: CalibConfig,
-                   keep_better: bool) -> F64:
-    """The centroid of the faces that face the radar (or, with ``keep_better``, that or
-    the footprint's centre, whichever the track's own rigid fit explains better).
+def facing_radar(corr: Correspondences, config: CalibConfig,
+                 keep_better: bool) -> Correspondences:
+    """Centre correspondences moved to the centroid of the faces that face the radar (or,
+    with ``keep_better``, left at the centre when the track's own rigid fit explains that
+    better).
 
     Real cars (and most simulators of them) reflect from inside the footprint, where the
     centre is the unbiased guess; a car that reflects from its skin puts the cluster centre
@@ -135,27 +131,26 @@ def _visible_faces(source: F64, centre: F64, yaw: F64, config: CalibConfig,
     and each cluster of hypotheses is judged under both (``prune_hypotheses``). (Stage 8
     makes no such assumption; this only has to be right to decimetres.)
     """
-    fit = registration.fit_yaw_translation(source, centre)
+    centre = corr.target_m
+    fit = registration.fit_yaw_translation(corr.source_m, centre)
     x0, x1, y0, y1 = box_limits(config.vehicle)
     length, width = x1 - x0, y1 - y0
-    c, s = np.cos(yaw), np.sin(yaw)
-    to_radar = fit.translation_m[:2] - centre[:, :2]
-    # aspect: the radar's direction in the vehicle frame
-    ax = c * to_radar[:, 0] + s * to_radar[:, 1]
-    ay = -s * to_radar[:, 0] + c * to_radar[:, 1]
+    # the radar's direction in the vehicle frame (at the box centre)
+    radar = np.broadcast_to(fit.translation_m[:2], (centre.shape[0], 2))
+    to_radar = world_to_vehicle(radar, centre, corr.yaw_rad)
+    ax, ay = to_radar[:, 0], to_radar[:, 1]
     norm = np.maximum(np.hypot(ax, ay), 1e-9)
     # faces weighted by their projected width as seen from the radar
     w_end = width * np.abs(ax) / norm
     w_side = length * np.abs(ay) / norm
-    off_x = w_end * 0.5 * length * np.sign(ax) / (w_end + w_side)
-    off_y = w_side * 0.5 * width * np.sign(ay) / (w_end + w_side)
+    offset = np.column_stack([w_end * 0.5 * length * np.sign(ax),
+                              w_side * 0.5 * width * np.sign(ay)]) / (w_end + w_side)[:, None]
     faces = centre.copy()
-    faces[:, 0] += c * off_x - s * off_y
-    faces[:, 1] += s * off_x + c * off_y
-    if not keep_better:
-        return faces
-    alt = registration.fit_yaw_translation(source, faces)
-    return faces if alt.rms_m < fit.rms_m else centre
+    faces[:, :2] = vehicle_to_world(offset, centre, corr.yaw_rad)
+    if keep_better and (registration.fit_yaw_translation(corr.source_m, faces).rms_m
+                        >= fit.rms_m):
+        return corr
+    return replace(corr, target_m=faces)
 
 
 def generate_hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording,
@@ -181,7 +176,8 @@ def generate_hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording,
     """
     del ground
     hyps: list[Hypothesis] = []
-    for corr in track_correspondences(tracks, recording, config, faces=None):
+    for corr in track_correspondences(tracks, recording, config):
+        corr = facing_radar(corr, config, keep_better=True)
         fit = registration.fit_yaw_translation(corr.source_m, corr.target_m)
         if fit.rms_m <= config.hypotheses.max_rms_m:
             hyps.append(Hypothesis(corr.track_id, fit.rotation, fit.translation_m,
@@ -328,10 +324,10 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     labels = DBSCAN(eps=cfg.eps_m, min_samples=cfg.min_samples).fit_predict(translations)
     labels = labels.astype(np.int64)
     # each cluster judged with the vehicle reflecting from inside its footprint and from
-    # its faces (see _visible_faces): the one that keeps more passes, then fits better
-    variants = [{c.track_id: c for c in track_correspondences(hyp_tracks, recording, config,
-                                                              faces=faces)}
-                for faces in (False, True)]
+    # its faces (see facing_radar): the one that keeps more passes, then fits better
+    centred = track_correspondences(hyp_tracks, recording, config)
+    variants = [{c.track_id: c for c in centred},
+                {c.track_id: facing_radar(c, config, keep_better=False) for c in centred}]
     clusters = [min((_cluster_core(int(label), np.flatnonzero(labels == label), hyps,
                                    hyp_tracks, corrs, recording, config)
                      for corrs in variants),

@@ -307,7 +307,10 @@ def test_a_car_that_reflects_from_its_skin_is_fitted_at_its_faces() -> None:
     # (placed around that first fit) brings it back to centimetres
     source = faces.copy()
     naive = registration.fit_yaw_translation(source, centre)
-    chosen = hypotheses._visible_faces(source, centre, yaw, config, keep_better=True)
+
+    def corr(src):  # type: ignore[no-untyped-def]
+        return hypotheses.Correspondences(1, src, centre, np.arange(yaw.size), yaw)
+    chosen = hypotheses.facing_radar(corr(source), config, keep_better=True).target_m
     fit = registration.fit_yaw_translation(source, chosen)
     assert np.linalg.norm(naive.translation_m[:2]) > 0.5
     assert np.linalg.norm(fit.translation_m[:2]) < 0.1
@@ -315,5 +318,5 @@ def test_a_car_that_reflects_from_its_skin_is_fitted_at_its_faces() -> None:
     # a car that reflects from inside its footprint keeps the centre
     rng = np.random.default_rng(0)
     interior = centre + rng.normal(0.0, 0.3, centre.shape)
-    kept = hypotheses._visible_faces(interior, centre, yaw, config, keep_better=True)
+    kept = hypotheses.facing_radar(corr(interior), config, keep_better=True).target_m
     np.testing.assert_array_equal(kept, centre)
