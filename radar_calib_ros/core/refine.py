@@ -61,12 +61,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import reflection, uncertainty
-from radar_calib_ros.core.vehicle import box_distance, box_limits
+from radar_calib_ros.core.vehicle import box_distance, box_limits, world_to_vehicle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.types import (
@@ -350,11 +351,11 @@ class _Model:
         # the range slopes: their offset rho B(a) q moves with rho
         rho_h = np.sqrt(rho2)
         slope = g['range_basis'] @ x[self.n_par - self.n_range:]
-        depth_w = np.column_stack([c * slope[:, 0] - s * slope[:, 1],
+        slope_w = np.column_stack([c * slope[:, 0] - s * slope[:, 1],
                                    s * slope[:, 0] + c * slope[:, 1], slope[:, 2]])
         drho_dt = (np.column_stack([-cl[:, 0], -cl[:, 1], np.zeros(n)])
                    / (rho_h * self.r_ref)[:, None])
-        de[:, :, 3:6] -= depth_w[:, :, None] * drho_dt[:, None, :]
+        de[:, :, 3:6] -= slope_w[:, :, None] * drho_dt[:, None, :]
         if self.tau_fixed is None:
             off = g['offset']
             z_cross_m = np.column_stack([-off[:, 1], off[:, 0], np.zeros(n)])
@@ -368,7 +369,7 @@ class _Model:
             dalpha_dtau = (cl[:, 0] * vc_y - cl[:, 1] * vc_x) / rho2 - rate
             drho_dtau = (cl[:, 0] * vc_x + cl[:, 1] * vc_y) / (rho_h * self.r_ref)
             de[:, :, 6] = (-g['vel'] - rate[:, None] * rz_zm
-                           - rz_dm * dalpha_dtau[:, None] - depth_w * drho_dtau[:, None])
+                           - rz_dm * dalpha_dtau[:, None] - slope_w * drho_dtau[:, None])
         basis = g['basis']
         de[:, 0, ip:] = -(c[:, None] * basis[:, 0, :] - s[:, None] * basis[:, 1, :])
         de[:, 1, ip:] = -(s[:, None] * basis[:, 0, :] + c[:, None] * basis[:, 1, :])
@@ -380,10 +381,10 @@ class _Model:
         dd = np.zeros((n, 3, n_par))
         dd[:, 0:2, 0:3] = de[:, 0:2, 0:3]
         dmz = dm[:, 2]
-        dd[:, 2, 3:6] = dmz[:, None] * dalpha_dt + depth_w[:, 2, None] * drho_dt
+        dd[:, 2, 3:6] = dmz[:, None] * dalpha_dt + slope_w[:, 2, None] * drho_dt
         dd[:, 2, 5] -= 1.0
         if self.tau_fixed is None:
-            dd[:, 2, 6] = g['vel'][:, 2] + dmz * dalpha_dtau + depth_w[:, 2] * drho_dtau
+            dd[:, 2, 6] = g['vel'][:, 2] + dmz * dalpha_dtau + slope_w[:, 2] * drho_dtau
         dd[:, 2, ip:] = basis[:, 2, :]
         dvp = np.zeros((n, 3, n_par))
         # V_pt = V + rate z x (x - P): only the horizontal lever arm matters
@@ -490,9 +491,8 @@ def _solve(model: _Model, x0: F64, max_iter: int = 30) -> _Fit:
 # --- selecting targets, weights, passes ---------------------------------------------------
 
 def _vehicle_frame(world: F64, pos: F64, yaw: F64) -> F64:
-    d = world - pos
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]])
+    """World points (n, 3) in each one's vehicle pose: bird's-eye view plus height."""
+    return np.column_stack([world_to_vehicle(world, pos, yaw), world[:, 2] - pos[:, 2]])
 
 
 def _track_sizes(track_ids: I64) -> I64:
@@ -562,15 +562,11 @@ def _group_median(group: I64, values: F64, n_groups: int) -> F64:
     """(n_groups,) median of the finite ``values`` of each group (inf where none)."""
     finite = np.isfinite(values)
     g, v = group[finite], values[finite]
-    order = np.lexsort((v, g))
-    g, v = g[order], v[order]
-    counts = np.bincount(g, minlength=n_groups)
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
     out = np.full(n_groups, np.inf)
-    has = counts > 0
-    lo = first[has] + (counts[has] - 1) // 2
-    hi = first[has] + counts[has] // 2
-    out[has] = 0.5 * (v[lo] + v[hi])
+    # scipy.ndimage.median returns an arbitrary value for a label without members
+    present = np.flatnonzero(np.bincount(g, minlength=n_groups))
+    if present.size:
+        out[present] = ndimage.median(v, g, present)
     return out
 
 
@@ -811,11 +807,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                                                prior_term=False)
     covariance = uncertainty.shrink_correlations(uncertainty.combined_covariance(pc, pb),
                                                  pc.n_passes)
-    cov7 = np.zeros((7, 7))
-    if estimate_tau:
-        cov7[:] = covariance[:7, :7]
-    else:
-        cov7[:6, :6] = covariance[:6, :6]
+    cov7 = _pose_block(covariance, estimate_tau)
     diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
                                config, fit, rounds, scatter)
     diagnostics.update({
@@ -827,14 +819,23 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                                       config.refine.reflection_height_sigma_m],
         'range_band_t_scale': pb.t_scale,
         # the two jackknifes behind the reported covariance (7x7 blocks, as cov7)
-        'covariance_passes': pc.covariance[:7, :7] if estimate_tau else pc.covariance[:6, :6],
-        'covariance_bands': pb.covariance[:7, :7] if estimate_tau else pb.covariance[:6, :6],
+        'covariance_passes': _pose_block(pc.covariance, estimate_tau),
+        'covariance_bands': _pose_block(pb.covariance, estimate_tau),
     })
     return Refinement(extrinsics=est, covariance=cov7, n_targets=int(data.index.size),
                       n_passes=pc.n_passes,
                       reflection_profile=np.asarray(profile[:reflection.n_coefficients(harmonics)],
                                                     float),
                       diagnostics=diagnostics)
+
+
+def _pose_block(covariance: F64, estimate_tau: bool) -> F64:
+    """The 7x7 [rotation vector, translation, clock offset] block of a full covariance
+    (zero for the clock offset when it was not estimated)."""
+    out = np.zeros((7, 7))
+    n = 7 if estimate_tau else 6
+    out[:n, :n] = covariance[:n, :n]
+    return out
 
 
 def _anchor(prior_mean: F64, start: Extrinsics, est: Extrinsics) -> F64:
