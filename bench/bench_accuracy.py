@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import sys
 import time
@@ -99,8 +100,6 @@ def _cm(row: dict[str, Any], stage: str) -> str:
 
 def _headings(row: dict[str, Any]) -> str:
     """The passes' directions of travel as compass initials (N, SE, ...), each once."""
-    import math
-
     from radar_calib_ros.core.uncertainty import compass_name
     names = sorted({''.join(w[0].upper() for w in compass_name(math.radians(h)).split('-'))
                     for h in row.get('headings_deg') or []})

@@ -322,6 +322,16 @@ def _truth_table(calibration: dict[str, Any], truth: dict[str, Any], result: Any
     return '\n'.join(rows)
 
 
+def _add_recording_arguments(p: argparse.ArgumentParser, *, calibration: bool) -> None:
+    """The recording (and, for commands that read one, the calibration file) and the
+    parameters file, worded the same in every subcommand."""
+    p.add_argument('bag', help='rosbag2 directory (sqlite3 or mcap)')
+    if calibration:
+        p.add_argument('--calibration', required=True, metavar='RESULT',
+                       help='result file of radar-calib calibrate (result.yaml or result.json)')
+    p.add_argument('--params', help='ROS 2 parameters file (default: built-in defaults)')
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='radar-calib', description='Target-less geo-referenced radar calibration from a '
@@ -330,8 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest='command', required=True)
 
     p = sub.add_parser('calibrate', help='calibrate a radar from a rosbag2 recording')
-    p.add_argument('bag', help='rosbag2 directory (sqlite3 or mcap)')
-    p.add_argument('--params', help='ROS 2 parameters file (default: built-in defaults)')
+    _add_recording_arguments(p, calibration=False)
     p.add_argument('--output', default='result.yaml', help='result file (default: %(default)s)')
     p.add_argument('--json', help='also write the result as JSON here')
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
@@ -360,10 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
         'rest merged; r_i, delta_op and delta_p, overall and per range bin. Where the bag '
         "directory holds the simulator's ground_truth.json, also the position and rotation "
         'errors. Exit 1 when the vehicle is never seen, 2 on bad input.')
-    p.add_argument('bag', help='rosbag2 directory (sqlite3 or mcap)')
-    p.add_argument('--calibration', required=True, metavar='RESULT',
-                   help='result file of radar-calib calibrate (result.yaml or result.json)')
-    p.add_argument('--params', help='ROS 2 parameters file (default: built-in defaults)')
+    _add_recording_arguments(p, calibration=True)
     p.add_argument('--json', help='also write the evaluation as JSON here')
     p.set_defaults(func=cmd_evaluate)
 
@@ -376,10 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
         'recording) and the ground-plane fit. The hypotheses, the refinement residuals, the '
         'reflection profile and the radial-velocity residuals exist only inside a '
         'calibration run: get them with `radar-calib calibrate BAG --report DIR`.')
-    p.add_argument('bag', help='rosbag2 directory (sqlite3 or mcap)')
-    p.add_argument('--calibration', required=True, metavar='RESULT',
-                   help='result file of radar-calib calibrate (result.yaml or result.json)')
-    p.add_argument('--params', help='ROS 2 parameters file (default: built-in defaults)')
+    _add_recording_arguments(p, calibration=True)
     p.add_argument('--out', required=True, metavar='DIR',
                    help='directory for the figures and report.html (created if missing)')
     p.set_defaults(func=cmd_report)
