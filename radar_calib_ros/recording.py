@@ -7,6 +7,7 @@ chunks and turns fixes into the local metric frame once, vectorised, at build ti
 """
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from collections.abc import Iterator
@@ -19,6 +20,8 @@ from radar_calib_ros.errors import ConfigError, InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.types import (
     F64, I64, FixSample, OdomSample, PoseSamples, RadarFrame, Targets, VehicleTrack)
+
+_LOG = logging.getLogger(__name__)
 
 
 # rough per-sample Python overhead (list slots, tuple/object headers, boxed floats) [bytes]
@@ -281,8 +284,9 @@ class RecordingBuilder:
             vx = np.interp(t, to, v_body[:, 0])
             vy = np.interp(t, to, v_body[:, 1])
             c, s = np.cos(yaw), np.sin(yaw)
-            velocities = np.column_stack([c * vx - s * vy, s * vx + c * vy,
-                                          _finite_difference(t, positions[:, 2])])
+            velocities = _checked_twist(t, positions, np.column_stack(
+                [c * vx - s * vy, s * vx + c * vy]), np.column_stack([vx, vy]),
+                self.counters)
             yaw_rate = np.interp(t, to, rate)
         else:
             velocities = np.column_stack([_finite_difference(t, positions[:, i])
@@ -331,6 +335,55 @@ def _interp_angle(tq: F64, t: F64, angle: F64) -> F64:
     """Interpolate an angle series on the circle; result wrapped to [-pi, pi)."""
     unwrapped = np.unwrap(angle)
     return (np.interp(tq, t, unwrapped) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+#: The Odometry twist is trusted where it agrees with the motion of the positions to within
+#: this (m/s) or this fraction of the median speed, whichever is larger (RTK positions
+#: differentiated over 0.4 s: ~0.1 m/s; a standalone fix at 1 Hz: ~1 m/s).
+_TWIST_TOLERANCE_MPS = 0.5
+_TWIST_TOLERANCE_FRACTION = 0.2
+#: Fewest samples of a moving vehicle (above this speed, m/s) to judge the twist on.
+_TWIST_CHECK_SPEED_MPS = 2.0
+_TWIST_CHECK_SAMPLES = 10
+
+
+def _checked_twist(t: F64, positions: F64, twist_world: F64, twist_as_given: F64,
+                   counters: Counter[str]) -> F64:
+    """(n, 3) vehicle velocities: the Odometry twist where it describes the motion of the
+    positions, else what does.
+
+    The radial-velocity constraint of the final refinement takes the vehicle's velocity at
+    its word, so a twist that is not the vehicle's body-frame velocity would turn the
+    radar's yaw. Drivers in the field get this wrong in two ways: the twist is left zero,
+    or it is published in the parent (ENU) frame instead of ``child_frame_id`` as REP-105
+    asks. Both are told from the positions' own motion; what matches is used (the ENU
+    reading as it is, else the positions' central differences) and a warning says so.
+    """
+    measured = np.column_stack([_finite_difference(t, positions[:, i]) for i in range(3)])
+    speed = np.hypot(measured[:, 0], measured[:, 1])
+    moving = speed > _TWIST_CHECK_SPEED_MPS
+    if int(moving.sum()) < _TWIST_CHECK_SAMPLES:
+        return np.column_stack([twist_world, measured[:, 2]])
+    tolerance = max(_TWIST_TOLERANCE_MPS,
+                    _TWIST_TOLERANCE_FRACTION * float(np.median(speed[moving])))
+
+    def mismatch(v: F64) -> float:
+        return float(np.median(np.linalg.norm(v[moving] - measured[moving, :2], axis=1)))
+
+    body, enu = mismatch(twist_world), mismatch(twist_as_given)
+    if body <= tolerance:
+        return np.column_stack([twist_world, measured[:, 2]])
+    if enu <= tolerance:
+        counters['odometry_twist_in_parent_frame'] = 1
+        _LOG.warning('the Odometry twist describes the vehicle\'s motion only read in the '
+                     'parent (ENU) frame (median mismatch %.2f m/s, as the child frame %.2f '
+                     'm/s): it is used so; REP-105 puts it in child_frame_id', enu, body)
+        return np.column_stack([twist_as_given, measured[:, 2]])
+    counters['odometry_twist_replaced'] = 1
+    _LOG.warning('the Odometry twist does not describe the vehicle\'s motion (median mismatch '
+                 '%.2f m/s against the positions, tolerance %.2f m/s): the velocity is taken '
+                 'from the positions instead', body, tolerance)
+    return measured
 
 
 def _finite_difference(t: F64, x: F64, half_span_s: float = 0.2) -> F64:

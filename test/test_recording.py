@@ -10,7 +10,7 @@ import pytest
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import ConfigError, InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
-from radar_calib_ros.recording import RecordingBuilder, interpolate_poses
+from radar_calib_ros.recording import RecordingBuilder, _odom_sample, interpolate_poses
 from radar_calib_ros.types import FixSample, OdomSample, RadarFrame
 
 T0 = 1_720_000_000_000_000_000
@@ -240,3 +240,36 @@ def test_drop_before_and_clear() -> None:
     assert builder.stamp_range_ns() == (T0 + 10**9, T0 + 1_980_000_000)
     builder.clear()
     assert builder.n_frames == 0 and builder.n_poses == 0 and builder.stamp_range_ns() is None
+
+
+@pytest.mark.parametrize('twist', ['body', 'zero', 'enu'])
+def test_odometry_twist_checked_against_the_positions(twist: str,
+                                                      caplog: pytest.LogCaptureFixture) -> None:
+    """A zero twist, or one published in the parent (ENU) frame, would turn the radar's yaw
+    through the radial-velocity fit: the positions' own motion tells, and what matches it
+    is used, with a warning."""
+    builder, frame, omega = circle_builder()
+    speed = 15.0
+    odoms = list(builder._odoms)
+    builder._odoms.clear()
+    for o in odoms:
+        sample = _odom_sample(o)
+        t = (sample.stamp_ns - T0) * 1e-9
+        heading = omega * t + np.pi / 2  # local grid
+        v = {'body': (speed, 0.0, 0.0), 'zero': (0.0, 0.0, 0.0),
+             'enu': (speed * math.cos(heading), speed * math.sin(heading), 0.0)}[twist]
+        builder.add_odometry(OdomSample(sample.stamp_ns, sample.position_m,
+                                        sample.quaternion_xyzw, v, sample.yaw_rate_rps))
+    with caplog.at_level('WARNING', logger='radar_calib_ros'):
+        rec = builder.build()
+    t = (rec.vehicle.stamps_ns - T0) * 1e-9
+    heading = omega * t + np.pi / 2
+    truth = speed * np.column_stack([np.cos(heading), np.sin(heading)])
+    inner = (t > 0.5) & (t < t[-1] - 0.5)
+    error = np.linalg.norm(rec.vehicle.velocities_mps[inner, :2] - truth[inner], axis=1)
+    # central differences over +-0.2 s on a 30 m circle: a few cm/s
+    assert error.max() < (0.1 if twist == 'zero' else 1e-6)
+    counters = {'body': {}, 'zero': {'odometry_twist_replaced': 1},
+                'enu': {'odometry_twist_in_parent_frame': 1}}[twist]
+    assert {k: v for k, v in rec.counters.items() if k.startswith('odometry_twist')} == counters
+    assert ('Odometry twist' in caplog.text) == (twist != 'body')
