@@ -315,11 +315,14 @@ def print_tables(rows: list[dict[str, Any]], thin: dict[str, Any] | None) -> boo
         else:
             s = thin['sigma']
             sh = math.hypot(s['along_boresight_m'], s['across_boresight_m'])
-            med = {g: statistics.median(
-                math.hypot(r['sigma']['along_boresight_m'], r['sigma']['across_boresight_m'])
-                if g == 'horizontal' else r['sigma'][f'{g}_m' if g == 'vertical' else
-                                                     f'{g}_deg'] for r in ok_rows)
-                for g in GROUPS} if ok_rows else {}
+
+            def sigma_of(r: dict[str, Any], g: str) -> float:
+                s = r['sigma']
+                if g == 'horizontal':
+                    return math.hypot(s['along_boresight_m'], s['across_boresight_m'])
+                return s['vertical_m'] if g == 'vertical' else s[f'{g}_deg']
+            med = ({g: statistics.median(sigma_of(r, g) for r in ok_rows) for g in GROUPS}
+                   if ok_rows else {})
             e = thin['errors']
             print(f'  {thin["scenario"]} seed {thin["seed"]}, passes '
                   + ', '.join(f'#{p["index"]} arm {p["entry_arm"]} lane {p["lane_in"]} '

@@ -196,6 +196,12 @@ class RefineConfig:
         'below the road included [m]', lo=-2.0, hi=5.0)
     reflection_height_sigma_m: float = _p(
         0.2, 'uncertainty of refine.reflection_height_m [m]', lo=1e-3, hi=5.0)
+    model_check: bool = _p(
+        True, "refit with the other refine.profile_range_terms and add the difference of the "
+        'two positions to the reported uncertainty')
+    model_sigma_along_m: float = _p(
+        0.02, 'systematic 1-sigma of the reflection model along the boresight, added to the '
+        'reported uncertainty [m]', lo=0.0, hi=5.0)
     cell_frames: float = _p(
         3.0, 'frames of one (vehicle position, aspect) cell that count at full weight; more '
         'frames share that weight (a queued car must not dominate)', lo=0.1, hi=1e6)

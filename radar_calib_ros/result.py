@@ -30,8 +30,8 @@ RESULT_KEYS = ('world_frame', 'radar_frame', 'epsg', 'translation', 'quaternion_
                'stamp', 'quality')
 
 
-def extrinsics_to_utm(extrinsics: Extrinsics, frame: LocalFrame) -> tuple[np.ndarray,
-                                                                           np.ndarray]:
+def extrinsics_to_utm(extrinsics: Extrinsics,
+                      frame: LocalFrame) -> tuple[np.ndarray, np.ndarray]:
     """(R_utm (3, 3), t_utm (3,)) of a local-frame calibration."""
     t_local = np.asarray(extrinsics.translation_m, float)
     r_grid = frame.rotation_local_to_utm(t_local)

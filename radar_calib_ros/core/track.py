@@ -286,8 +286,8 @@ def smooth_tracks(times_s: F64, centres_m: F64, lengths: I64,
     starts = np.cumsum(lengths) - lengths
     # Segments: (first measurement, length, where its kept core starts in it, core length).
     seg_first, seg_len, core_at, core_len = _segments(starts, lengths)
-    pick = np.concatenate([np.arange(a, a + n) for a, n in zip(seg_first.tolist(),
-                                                              seg_len.tolist())])
+    pick = np.concatenate([np.arange(a, a + n)
+                           for a, n in zip(seg_first.tolist(), seg_len.tolist())])
     seg_times, seg_centres = times_s[pick], centres_m[pick]
     seg_starts = np.cumsum(seg_len) - seg_len
     init = [initial_state(seg_times[lo:lo + n], seg_centres[lo:lo + n], cfg)

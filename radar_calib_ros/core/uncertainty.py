@@ -140,6 +140,31 @@ def combined_covariance(passes: PassCovariance, bands: PassCovariance,
     return out
 
 
+def add_along_boresight(covariance: F64, rotation: F64, sigma_m: float) -> F64:
+    """``covariance`` (7x7, [rotation vector, translation, time offset]) with a variance of
+    ``sigma_m`` squared added to the horizontal translation along the boresight's ground
+    projection.
+
+    Neither jackknife sees an error that every pass and every range band share. The one
+    left is the reflection model's: where on the car the targets lie changes with range
+    (which scatterers clear the detection threshold, what the elevation field of view cuts
+    off), an aspect-only profile follows it only on average, and the remainder trades
+    against the radar's position along the boresight, the weakest direction. Measured on
+    the simulator over 66 ten-minute runs of all three scatter models, the error along the
+    boresight was biased by a few centimetres with a sign set by the model (interior:
+    radar too far forward, skin: too far back), while passes and bands agreed: the 2-sigma
+    ellipse covered 83 % of the interior runs, 96 % with a 2 cm term.
+    """
+    out = np.array(covariance, float, copy=True)
+    boresight = np.asarray(rotation, float)[:2, 0]
+    norm = float(np.hypot(*boresight))
+    if sigma_m <= 0.0 or norm < 1e-9:
+        return out
+    along = boresight / norm
+    out[3:5, 3:5] += sigma_m ** 2 * np.outer(along, along)
+    return out
+
+
 def shrink_correlations(covariance: F64, n_groups: int, block: int = 3) -> F64:
     """Covariance with its correlations shrunk toward zero, variances kept.
 

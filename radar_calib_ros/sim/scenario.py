@@ -4,9 +4,9 @@ Each scenario is a fixed description of a site: its junction, static scene and r
 mount(s). The seed varies the drive past it (signal offsets, traffic, the calibration
 vehicle's route, every noise draw), never the site, so two seeds are two recordings of the
 same radar; a separate mount seed moves the mount a little (within the ranges of real
-installations) for another installation of the same scenario. Sites differ on purpose: the grid convergence between
-true north, the local grid and UTM ranges from ~0.3 to ~2.5 deg across them, one site is
-in the southern hemisphere with left-hand traffic.
+installations) for another installation of the same scenario. Sites differ on purpose: the
+grid convergence between true north, the local grid and UTM ranges from ~0.3 to ~2.5 deg
+across them, one site is in the southern hemisphere with left-hand traffic.
 """
 from __future__ import annotations
 

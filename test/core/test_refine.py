@@ -7,9 +7,11 @@ directions, targets from a scatter model, spherical noise and rigid-body radial 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from refine_scene import errors, make_scene
 
 from radar_calib_ros.config import CalibConfig
@@ -293,6 +295,22 @@ def test_range_bands_raise_the_horizontal_variance_halfway() -> None:
     # yaw, x and the clock offset halfway up; y, where the passes disagree more, stays;
     # roll, pitch and the height are never taken from the bands (they lose range leverage)
     np.testing.assert_allclose(np.diag(out), [1.0, 1.0, 5.0, 10.0, 4.0, 1.0, 5.0])
+
+
+def test_model_term_widens_only_along_the_boresight() -> None:
+    # boresight 30 deg left of east and pitched down: its ground projection is what counts
+    yaw, pitch = math.radians(30.0), math.radians(10.0)
+    rotation = (Rotation.from_euler('z', yaw) * Rotation.from_euler('y', pitch)).as_matrix()
+    cov = np.diag([1e-6, 1e-6, 1e-6, 0.03 ** 2, 0.01 ** 2, 0.1 ** 2, 1e-6])
+    out = uncertainty.add_along_boresight(cov, rotation, 0.02)
+    before = uncertainty.sigma_summary(cov, rotation)
+    after = uncertainty.sigma_summary(out, rotation)
+    assert after['sigma_along_boresight_m'] == pytest.approx(
+        math.hypot(before['sigma_along_boresight_m'], 0.02))
+    assert after['sigma_across_boresight_m'] == pytest.approx(before['sigma_across_boresight_m'])
+    np.testing.assert_array_equal(np.delete(np.delete(out, [3, 4], 0), [3, 4], 1),
+                                  np.delete(np.delete(cov, [3, 4], 0), [3, 4], 1))
+    np.testing.assert_array_equal(uncertainty.add_along_boresight(cov, rotation, 0.0), cov)
 
 
 # --- failure ------------------------------------------------------------------------------
