@@ -9,7 +9,7 @@ import logging
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -132,6 +132,18 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
         with stage('polygon'):
             current = polygon.refine_polygon(current, recording, tracked, selection, config)
         stage_extrinsics['polygon'] = current
+    # The contract's v_r convention is a range rate; where the radar's is the opposite, the
+    # paper's stages never noticed (they use |v_r| or compare v_r with v_r) but the final
+    # fit and the detection check would be fooled: judge it on the vehicle, flip, and say so.
+    sign, n_same, n_flipped = quality.radial_velocity_sign(current, recording, config)
+    if sign < 0:
+        recording = replace(recording, targets=replace(
+            targets, radial_velocity_mps=-targets.radial_velocity_mps))
+        flip_note = (f'The radar reports radial velocities with the opposite sign (approach '
+                     f'positive): near the vehicle {n_flipped} targets match its motion so, '
+                     f'{n_same} as a range rate. They were flipped; set radar.velocity_sign '
+                     f'to {-config.radar.velocity_sign:g} to say so.')
+        _LOG.warning('%s', flip_note)
     refinement: Refinement | None = None
     if config.refine.final:
         with stage('refine'):
@@ -144,6 +156,9 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
         report = quality.assess_quality(current, refinement, recording, tracked, selection,
                                         config)
         report.extra['vehicle_detection_ratio'] = detection
+        report.extra['radial_velocity_sign'] = sign * config.radar.velocity_sign
+        if sign < 0:
+            report = replace(report, advice=(*report.advice, flip_note))
     if progress is not None:
         progress('done', 1.0)
     return CalibrationResult(current, report, recording, tracked, ground, tracks, selection,

@@ -5,6 +5,7 @@ import io
 from pathlib import Path
 
 import pytest
+import yaml
 
 from radar_calib_ros.cli import main
 
@@ -81,6 +82,18 @@ def test_demo_end_to_end_against_ground_truth(tmp_path: Path,
     as_json = json.loads((tmp_path / 'r.json').read_text())
     assert as_json['translation'] == pytest.approx(estimate['translation'], abs=1e-6)
     assert 'position' in out and 'result written to' in out
+
+    # A radar that reports approach as positive (velocity_sign -1 read on this bag flips
+    # every v_r): told from the vehicle's motion, flipped back, and said.
+    params = yaml.safe_load((bag / 'params.yaml').read_text())
+    params['/**']['ros__parameters'].setdefault('radar', {})['velocity_sign'] = -1.0
+    (tmp_path / 'flipped.yaml').write_text(yaml.safe_dump(params))
+    code, out, err = _run(['calibrate', str(bag), '--params', str(tmp_path / 'flipped.yaml'),
+                           '--output', str(tmp_path / 'f.yaml')], capsys)
+    assert code == 0, err
+    assert 'opposite sign' in out + err and 'velocity_sign to 1' in out + err
+    flipped = calibration_errors(load_result(tmp_path / 'f.yaml'), truth)
+    assert flipped['horizontal_m'] < 0.10 and flipped['rotation_deg'] < 0.3
 
 
 def test_vehicle_never_in_view_exits_1_without_result(
