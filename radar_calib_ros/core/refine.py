@@ -724,10 +724,13 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
             # The reflection model is the largest error left, and neither jackknife sees the
             # part every pass shares. The same fit under the other range law of the profile
             # (depth only <-> every coefficient) shows how much the position depends on that
-            # choice; the difference enters the reported covariance. Measured over 106
-            # simulated ten-minute runs (with the 2 cm along-boresight term): the 2-sigma
-            # ellipse covered 97 / 100 / 82 % of the interior / mixed / skin horizontal
-            # errors without it, 97 / 100 / 97 % with it, for one more fit.
+            # choice; half its outer product enters the reported covariance (the difference
+            # of two fits of the same data also carries their noise, which the jackknifes
+            # already count). Measured over 106 simulated ten-minute runs (with the 2 cm
+            # along-boresight term): the 2-sigma ellipse covered 97 / 100 / 82 % of the
+            # interior / mixed / skin horizontal errors without it, 97 / 100 / 94 % with
+            # half (97 % skin with all of it, but 100 % and wide on six-minute drives), for
+            # one more fit.
             other = 'full' if config.refine.profile_range_terms == 'depth' else 'depth'
             alt_config = dataclasses.replace(config, refine=dataclasses.replace(
                 config.refine, profile_range_terms=other, model_check=False))
@@ -830,7 +833,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                                            cfg.model_sigma_along_m)
     model_difference = (np.zeros(3) if alternative_translation is None
                         else np.asarray(alternative_translation, float) - est.translation_m)
-    cov7[3:6, 3:6] += np.outer(model_difference, model_difference)
+    cov7[3:6, 3:6] += 0.5 * np.outer(model_difference, model_difference)
     diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
                                config, fit, rounds, scatter)
     diagnostics.update({
