@@ -49,11 +49,11 @@ CHI2_2D = -2.0 * math.log(1.0 - P2)          # closed form for 2 degrees of free
 CHI2_3D = 8.0249                             # scipy.stats.chi2.ppf(0.9545, 3)
 
 
-def _bag(scenario: str, seed: int, duration: float) -> Path:
-    from radar_calib_ros.sim import DEFAULT_SCATTER_MODEL, simulate
-    bag = OUT / f'{scenario}_{DEFAULT_SCATTER_MODEL}_s{seed}_{int(duration)}'
+def _bag(scenario: str, seed: int, duration: float, model: str) -> Path:
+    from radar_calib_ros.sim import simulate
+    bag = OUT / f'{scenario}_{model}_s{seed}_{int(duration)}'
     if not (bag / 'ground_truth.json').is_file():
-        simulate(bag, seed=seed, duration_s=duration, scenario=scenario)
+        simulate(bag, seed=seed, duration_s=duration, scenario=scenario, scatter_model=model)
     return bag
 
 
@@ -108,18 +108,18 @@ def assess(result: Any, config: Any, truth: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def run_one(scenario: str, seed: int, duration: float) -> dict[str, Any]:
+def run_one(scenario: str, seed: int, duration: float, model: str) -> dict[str, Any]:
     from radar_calib_ros.cli import calibrate_bag
     from radar_calib_ros.config import CalibConfig
     from radar_calib_ros.errors import CalibrationError
     from radar_calib_ros.groundtruth import load_ground_truth
 
-    bag = _bag(scenario, seed, duration)
+    bag = _bag(scenario, seed, duration, model)
     truth = load_ground_truth(bag)
     assert truth is not None
     config = CalibConfig.from_file(bag / 'params.yaml')
     row: dict[str, Any] = {'scenario': scenario, 'seed': seed, 'duration_s': duration,
-                           'true_passes': truth['n_passes']}
+                           'model': model, 'true_passes': truth['n_passes']}
     try:
         result, _ = calibrate_bag(bag, config)
     except CalibrationError as err:
@@ -177,11 +177,12 @@ def thin_case(scenarios: tuple[str, ...], seeds: list[int], duration: float,
     from radar_calib_ros.groundtruth import load_ground_truth
     from radar_calib_ros.io.bag import read_recording
     from radar_calib_ros.pipeline import run_calibration
+    from radar_calib_ros.sim import DEFAULT_SCATTER_MODEL
 
     attempts: list[str] = []
     for scenario in scenarios:
         for seed in seeds:
-            bag = _bag(scenario, seed, duration)
+            bag = _bag(scenario, seed, duration, DEFAULT_SCATTER_MODEL)
             truth = load_ground_truth(bag)
             assert truth is not None
             pairs = same_lane_pairs(truth['passes'])
@@ -227,6 +228,9 @@ def main() -> int:
     parser.add_argument('--scenarios', nargs='+', default=list(SCENARIOS))
     parser.add_argument('--seeds', nargs='+', type=int, default=[11, 12, 13, 14, 15, 16])
     parser.add_argument('--duration', type=float, default=360.0)
+    parser.add_argument('--models', nargs='+', default=None,
+                        help='scatter models of the simulated drives (default: the '
+                        "simulator's default); the coverage is also printed per model")
     parser.add_argument('--thin-duration', type=float, default=600.0)
     parser.add_argument('--jobs', type=int, default=2)
     parser.add_argument('--json', help='write all rows here')
@@ -244,7 +248,10 @@ def main() -> int:
         data = json.loads(Path(args.from_json).read_text())
     else:
         OUT.mkdir(parents=True, exist_ok=True)
-        jobs = [(s, seed, args.duration) for s in args.scenarios for seed in args.seeds]
+        from radar_calib_ros.sim import DEFAULT_SCATTER_MODEL
+        models = args.models or [DEFAULT_SCATTER_MODEL]
+        jobs = [(s, seed, args.duration, m) for m in models for s in args.scenarios
+                for seed in args.seeds]
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
             rows = list(pool.map(run_one, *zip(*jobs)))
             thin = None if args.no_thin else pool.submit(
@@ -260,7 +267,7 @@ def print_tables(rows: list[dict[str, Any]], thin: dict[str, Any] | None) -> boo
           f'{"rot err/sig deg":>17}{"z h/v/rot":>17}{"in 2sig":>8}{"full":>6}')
     for r in rows:
         if r['status'] != 'ok':
-            print(f'{r["scenario"]:<22}{r["seed"]:>5}  {r["status"]}')
+            print(f'{r["scenario"]:<22}{r["seed"]:>5}  {r.get("model", "")} {r["status"]}')
             continue
         e, s, z = r['errors'], r['sigma'], r['z']
         sh = math.hypot(s['along_boresight_m'], s['across_boresight_m'])
@@ -271,7 +278,7 @@ def print_tables(rows: list[dict[str, Any]], thin: dict[str, Any] | None) -> boo
               f'{100 * e["vertical_m"]:7.1f}{100 * s["vertical_m"]:7.1f}'
               f'{e["rotation_deg"]:8.3f}{s["rotation_deg"]:9.3f}'
               f'{z["horizontal"]:6.2f}{z["vertical"]:5.2f}{z["rotation"]:6.2f}'
-              f'{cov:>8}{full:>6}')
+              f'{cov:>8}{full:>6}  {r.get("model", "")}')
     ok_rows = [r for r in rows if r['status'] == 'ok']
     n = len(ok_rows)
     print(f'\n{n} of {len(rows)} runs calibrated; coverage of the true error by 2 sigma '
@@ -298,6 +305,16 @@ def print_tables(rows: list[dict[str, Any]], thin: dict[str, Any] | None) -> boo
         verdicts.append(f'{g} {100 * frac:.1f} % {"ok" if ok else "NOT in 90-98 %"}')
         print(line)
     print('  judged: ' + ', '.join(verdicts))
+    models = sorted({r.get('model', '') for r in ok_rows})
+    if len(models) > 1:
+        print('  per scatter model (horizontal and rotation on the full covariance):')
+        for m in models:
+            sub = [r for r in ok_rows if r.get('model', '') == m]
+            parts = []
+            for g in GROUPS:
+                hits = [r.get('covered_full', {}).get(g, r['covered'][g]) for r in sub]
+                parts.append(f'{g} {sum(hits)}/{len(hits)} = {100 * sum(hits) / len(hits):.0f} %')
+            print(f'    {m:<9} ' + ', '.join(parts))
     axes = [r['z_axes'] for r in ok_rows if 'z_axes' in r]
     if axes:
         print('  per axis of the refinement covariance (world frame; rotation about x, y, z): '

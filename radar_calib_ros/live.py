@@ -466,6 +466,9 @@ class LiveCalibrator:
             self._file_problem = None
             self._source += f', written to {config.output.path}'
         self._log('info', f'{summary} ({elapsed:.1f} s on {frames} radar frames)')
+        for line in result.quality.advice:
+            # what `radar-calib calibrate` prints as warnings
+            self._log('warn', line)
         return TriggerOutcome(True, summary, transform)
 
     def _progress(self, stage: str, fraction: float) -> None:
@@ -491,9 +494,13 @@ class LiveCalibrator:
                 f'{quality.inlier_ratio:.2f}, 1-sigma {quality.sigma_translation_m:.3f} m '
                 f'(along boresight {quality.sigma_along_boresight_m:.3f} m) / '
                 f'{quality.sigma_rotation_deg:.2f} deg, {quality.passes} passes')
-        if quality.advice and (quality.sigma_along_boresight_m
-                               > config.quality.max_boresight_sigma_m):
-            text += f'. {quality.advice[0]}'
+        notes = list(quality.extra.get('data_notes') or [])
+        for note in notes:
+            text += f'. {note}'
+        drive_advice = quality.advice[len(notes):]
+        if drive_advice and (quality.sigma_along_boresight_m
+                             > config.quality.max_boresight_sigma_m):
+            text += f'. {drive_advice[0]}'
         return text
 
     def reset(self) -> TriggerOutcome:

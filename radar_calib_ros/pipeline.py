@@ -100,6 +100,21 @@ def track_targets(recording: Recording, config: CalibConfig, *,
     return TrackedTargets(moving_index[local.target_index], local.track_id)
 
 
+def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
+    """What the calibration had to work around in the data, for the user to fix at the
+    source: a flipped radial-velocity sign, an Odometry twist that did not describe the
+    vehicle's motion."""
+    notes = [flip_note] if flip_note else []
+    if recording.counters.get('odometry_twist_replaced'):
+        notes.append('The Odometry twist did not describe the vehicle\'s motion (zero, or in '
+                     'another frame): the velocity was taken from the positions. Check the '
+                     'driver: REP-105 puts the twist in child_frame_id.')
+    if recording.counters.get('odometry_twist_in_parent_frame'):
+        notes.append('The Odometry twist is in the parent (ENU) frame and was read so; REP-105 '
+                     'puts it in child_frame_id.')
+    return notes
+
+
 def run_calibration(recording: Recording, config: CalibConfig, *,
                     progress: ProgressFn | None = None) -> CalibrationResult:
     """Calibrate the radar of a recording.
@@ -157,8 +172,9 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
                                         config)
         report.extra['vehicle_detection_ratio'] = detection
         report.extra['radial_velocity_sign'] = sign * config.radar.velocity_sign
-        if sign < 0:
-            report = replace(report, advice=(*report.advice, flip_note))
+        notes = _data_notes(recording, flip_note if sign < 0 else None)
+        report.extra['data_notes'] = notes
+        report = replace(report, advice=(*notes, *report.advice))
     if progress is not None:
         progress('done', 1.0)
     return CalibrationResult(current, report, recording, tracked, ground, tracks, selection,

@@ -98,8 +98,9 @@ def feed(live: LiveCalibrator, store: Any, seconds: float, *, start_ns: int = T0
             live.on_odometry(odom_msg(store, stamp))
 
 
-def fake_result(recording: Any) -> Any:
-    """A CalibrationResult-like object for plumbing tests (no pipeline involved)."""
+def fake_result(recording: Any, notes: tuple[str, ...] = ()) -> Any:
+    """A CalibrationResult-like object for plumbing tests (no pipeline involved); ``notes``
+    are data notes (what the pipeline worked around), ahead of the drive advice."""
     from radar_calib_ros.result import calibration_dict, quality_dict
 
     quality = QualityReport(inlier_ratio=0.9, outlier_distance_m=0.2,
@@ -108,7 +109,9 @@ def fake_result(recording: Any) -> Any:
                             sigma_translation_m=0.03, sigma_along_boresight_m=0.2,
                             sigma_across_boresight_m=0.02, sigma_vertical_m=0.02,
                             sigma_rotation_deg=0.1,
-                            advice=('Drive along the boresight, on the lane towards the radar.',))
+                            advice=(*notes,
+                                    'Drive along the boresight, on the lane towards the radar.'),
+                            extra={'data_notes': list(notes)})
     extrinsics = Extrinsics(np.eye(3), np.array([10.0, 20.0, 6.0]))
 
     class Result:
@@ -487,6 +490,24 @@ def test_calibrate_success_publishes_and_writes_the_file(tmp_path: Path, store: 
     keys = dict(status.values)
     assert keys['quality.inlier_ratio'] == '0.9' and 'translation' in keys
     assert not list(tmp_path.glob('.result.yaml.*'))  # no temporary file left behind
+
+
+def test_calibrate_answer_names_what_the_data_needed(tmp_path: Path, store: Any) -> None:
+    """Data notes (a flipped v_r sign, a twist not in the child frame) are in the one-line
+    answer ahead of the drive advice, and every advice line is logged as a warning, as
+    `radar-calib calibrate` prints them."""
+    note = 'The radar reports radial velocities with the opposite sign; set radar.velocity_sign'
+
+    def run(recording: Any, config: CalibConfig, progress: Any = None) -> Any:
+        return fake_result(recording, notes=(note,))
+    live, log = make_live(tmp_path, run=run)
+    feed(live, store, 2.0)
+    outcome = live.calibrate()
+    assert outcome.success, outcome.message
+    assert note in outcome.message and 'Drive along the boresight' in outcome.message
+    assert outcome.message.index(note) < outcome.message.index('Drive along the boresight')
+    warnings = [m for severity, m in log.lines if severity == 'warn']
+    assert note in warnings and any('Drive along the boresight' in m for m in warnings)
 
 
 def test_calibrate_failure_reports_the_reason_and_keeps_the_file(tmp_path: Path,

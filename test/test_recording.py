@@ -273,3 +273,7 @@ def test_odometry_twist_checked_against_the_positions(twist: str,
                 'enu': {'odometry_twist_in_parent_frame': 1}}[twist]
     assert {k: v for k, v in rec.counters.items() if k.startswith('odometry_twist')} == counters
     assert ('Odometry twist' in caplog.text) == (twist != 'body')
+    # and the calibration's advice names it for the user to fix at the source
+    from radar_calib_ros.pipeline import _data_notes
+    notes = _data_notes(rec, None)
+    assert len(notes) == (twist != 'body') and all('REP-105' in n for n in notes)
