@@ -197,8 +197,11 @@ class RefineConfig:
     reflection_height_sigma_m: float = _p(
         0.2, 'uncertainty of refine.reflection_height_m [m]', lo=1e-3, hi=5.0)
     model_check: bool = _p(
-        True, "refit with the other refine.profile_range_terms and add half the outer product "
-        'of the two positions\' difference to the reported covariance')
+        True, "refit with the other refine.profile_range_terms and add the two positions' "
+        "difference to the reported covariance (at most the fit's own variance along it)")
+    model_sigma_tilt_deg: float = _p(
+        0.1, 'systematic 1-sigma of the reflection model in roll and pitch (rotation about the '
+        'horizontal world axes), added to the reported uncertainty [deg]', lo=0.0, hi=10.0)
     model_sigma_along_m: float = _p(
         0.02, 'systematic 1-sigma of the reflection model along the boresight, added to the '
         'reported uncertainty [m]', lo=0.0, hi=5.0)

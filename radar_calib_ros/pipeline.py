@@ -21,8 +21,8 @@ from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.result import calibration_dict, quality_dict
 from radar_calib_ros.types import (
-    Extrinsics, GroundPlane, HypothesisSelection, QualityReport, Refinement, SmoothedTrack,
-    TrackedTargets)
+    Extrinsics, GroundPlane, Hypothesis, HypothesisSelection, QualityReport, Refinement,
+    SmoothedTrack, TrackedTargets)
 
 _LOG = logging.getLogger(__name__)
 
@@ -100,6 +100,60 @@ def track_targets(recording: Recording, config: CalibConfig, *,
     return TrackedTargets(moving_index[local.target_index], local.track_id)
 
 
+#: Step of the clock offsets tried when the hypotheses do not agree at the given one [s].
+_CLOCK_STEP_S = 0.05
+
+
+def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground: GroundPlane,
+                config: CalibConfig) -> tuple[list[Hypothesis], HypothesisSelection]:
+    """Stage 6, and again at other clock offsets when its hypotheses do not agree.
+
+    The paper's stages pair radar stamps with vehicle poses as given (plus
+    ``sync.time_offset``); only the final refinement estimates the clock offset. An offset
+    displaces the vehicle by its speed times the offset along its direction of travel, so
+    passes driven in opposite directions give translations metres apart (0.2 s at 12 m/s
+    is 2.4 m each way) and never agree, while ``sync.max_time_offset`` promises offsets up
+    to a quarter of a second. When stage 6 finds no agreement, it is tried again at offsets
+    in steps of ``_CLOCK_STEP_S`` within that bound, and the offset whose agreeing group
+    has the most tracks (then correspondences) is taken as the starting clock offset of
+    the later stages. Only on failure: at the given offset nothing changes, and chance
+    agreements of other road users at some offset are still refused by the final
+    detection check.
+    """
+    try:
+        hyps = hypotheses.generate_hypotheses(tracks, recording, ground, config)
+        return hyps, hypotheses.prune_hypotheses(hyps, tracks, recording, ground, config)
+    except InsufficientDataError as first:
+        max_off = config.sync.max_time_offset
+        if not config.sync.estimate_time_offset or max_off < _CLOCK_STEP_S:
+            raise
+        failure = first
+    n_steps = int(max_off / _CLOCK_STEP_S + 1e-9)
+    offsets = [sign * k * _CLOCK_STEP_S for k in range(1, n_steps + 1) for sign in (1, -1)]
+    best: tuple[tuple[int, int], float, list[Hypothesis], HypothesisSelection] | None = None
+    for offset in offsets:
+        shifted = replace(config, sync=replace(config.sync,
+                                               time_offset=config.sync.time_offset + offset))
+        try:
+            hyps = hypotheses.generate_hypotheses(tracks, recording, ground, shifted)
+            selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, shifted)
+        except InsufficientDataError:
+            continue
+        score = (len(selection.accepted_track_ids), selection.n_correspondences)
+        if best is None or score > best[0]:
+            best = (score, offset, hyps, selection)
+    if best is None:
+        raise InsufficientDataError(
+            failure.stage, f'{failure.reason} (also at clock offsets up to +-{max_off:g} s)')
+    _, offset, hyps, selection = best
+    _LOG.warning('the hypotheses agree only with the radar stamps shifted by %+.2f s: a clock '
+                 'offset between radar and vehicle (sync.time_offset); the final refinement '
+                 'estimates it', offset)
+    ext = selection.extrinsics
+    shifted_ext = Extrinsics(ext.rotation, ext.translation_m, ext.time_offset_s + offset)
+    return hyps, replace(selection, extrinsics=shifted_ext)
+
+
 def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
     source: a flipped radial-velocity sign, an Odometry twist that did not describe the
@@ -139,8 +193,7 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
     with stage('track'):
         tracks = tuple(track.track_clusters(recording, tracked, ground, config.track))
     with stage('hypotheses'):
-        hyps = hypotheses.generate_hypotheses(tracks, recording, ground, config)
-        selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, config)
+        hyps, selection = _hypotheses(tracks, recording, ground, config)
     stage_extrinsics = {'hypotheses': selection.extrinsics}
     current = selection.extrinsics
     if config.refine.polygon:

@@ -724,13 +724,14 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
             # The reflection model is the largest error left, and neither jackknife sees the
             # part every pass shares. The same fit under the other range law of the profile
             # (depth only <-> every coefficient) shows how much the position depends on that
-            # choice; half its outer product enters the reported covariance (the difference
-            # of two fits of the same data also carries their noise, which the jackknifes
-            # already count). Measured over 106 simulated ten-minute runs (with the 2 cm
-            # along-boresight term): the 2-sigma ellipse covered 97 / 100 / 82 % of the
-            # interior / mixed / skin horizontal errors without it, 97 / 100 / 94 % with
-            # half (97 % skin with all of it, but 100 % and wide on six-minute drives), for
-            # one more fit.
+            # choice; the squared difference enters the reported covariance along its
+            # direction, capped at this fit's own variance there (at most sqrt(2) wider):
+            # a difference far beyond the data's precision says the alternative, with its
+            # many more range terms, is ill-determined in that geometry (seen: 2 m apart
+            # where this fit erred by 11 cm), not that this fit is off by that much.
+            # Measured over 106 simulated ten-minute runs (with the 2 cm along-boresight
+            # term): the 2-sigma ellipse covered 97 / 100 / 82 % of the interior / mixed /
+            # skin horizontal errors without it, 97 / 100 / 97 % with it, for one more fit.
             other = 'full' if config.refine.profile_range_terms == 'depth' else 'depth'
             alt_config = dataclasses.replace(config, refine=dataclasses.replace(
                 config.refine, profile_range_terms=other, model_check=False))
@@ -831,9 +832,10 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                                                  pc.n_passes)
     cov7 = uncertainty.add_along_boresight(_pose_block(covariance, estimate_tau), est.rotation,
                                            cfg.model_sigma_along_m)
+    cov7 = uncertainty.add_tilt(cov7, math.radians(cfg.model_sigma_tilt_deg))
     model_difference = (np.zeros(3) if alternative_translation is None
                         else np.asarray(alternative_translation, float) - est.translation_m)
-    cov7[3:6, 3:6] += 0.5 * np.outer(model_difference, model_difference)
+    cov7[3:6, 3:6] += uncertainty.model_term(model_difference, cov7[3:6, 3:6])
     diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
                                config, fit, rounds, scatter)
     diagnostics.update({

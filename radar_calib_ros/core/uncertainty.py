@@ -165,6 +165,37 @@ def add_along_boresight(covariance: F64, rotation: F64, sigma_m: float) -> F64:
     return out
 
 
+def add_tilt(covariance: F64, sigma_rad: float) -> F64:
+    """``covariance`` (7x7) with a variance of ``sigma_rad`` squared added to the rotations
+    about the two horizontal world axes (roll and pitch whatever the yaw).
+
+    The tilt comes from the heights of the vehicle's targets across the range, and the mean
+    height of what a radar sees of a car changes with range (the multipath images below
+    the road and the weak scatterers drop out with distance, the field of view cuts the
+    lower parts close by): a tilt every pass shares, which neither jackknife sees.
+    Measured over 106 simulated ten-minute runs of all three scatter models: the 95 %
+    rotation ellipsoid covered 75 / 69 / 79 % (interior / mixed / skin) of the errors
+    without it, about 97 / 94 / 88 % with 0.1 deg (diagonal approximation).
+    """
+    out = np.array(covariance, float, copy=True)
+    out[0, 0] += sigma_rad ** 2
+    out[1, 1] += sigma_rad ** 2
+    return out
+
+
+def model_term(difference: F64, covariance: F64) -> F64:
+    """Covariance of a model difference (a position from another model minus this one,
+    ``difference``), capped at ``covariance``'s variance along it: the squared length, or
+    the variance the data already give in that direction, whichever is smaller, times the
+    outer product of its direction. See ``refine_extrinsics`` for why the cap."""
+    d = np.asarray(difference, float)
+    length2 = float(d @ d)
+    if length2 <= 0.0:
+        return np.zeros((d.size, d.size))
+    unit = d / math.sqrt(length2)
+    return min(length2, float(unit @ covariance @ unit)) * np.outer(unit, unit)
+
+
 def shrink_correlations(covariance: F64, n_groups: int, block: int = 3) -> F64:
     """Covariance with its correlations shrunk toward zero, variances kept.
 

@@ -315,7 +315,8 @@ def test_model_term_widens_only_along_the_boresight() -> None:
 
 def test_model_check_adds_the_refit_difference_to_the_covariance() -> None:
     """The refit under the other range law of the profile leaves the estimate alone and adds
-    half the outer product of the position difference to the translation block."""
+    the squared position difference along its direction, at most the fit's own variance
+    there, to the translation block."""
     scene = make_scene(9, model='interior', geometry='head_on')
     unchecked = dataclasses.replace(scene, config=dataclasses.replace(
         scene.config, refine=dataclasses.replace(scene.config.refine, model_check=False)))
@@ -325,10 +326,28 @@ def test_model_check_adds_the_refit_difference_to_the_covariance() -> None:
     difference = np.asarray(checked.diagnostics['model_difference_m'])
     assert np.linalg.norm(difference) > 1e-3  # head-on only: the two laws do disagree
     assert plain.diagnostics['model_difference_m'] == [0.0, 0.0, 0.0]
+    unit = difference / np.linalg.norm(difference)
+    own = unit @ plain.covariance[3:6, 3:6] @ unit
+    added = min(float(difference @ difference), own) * np.outer(unit, unit)
     np.testing.assert_allclose(checked.covariance - plain.covariance,
-                               np.pad(0.5 * np.outer(difference, difference),
-                                      ((3, 1), (3, 1))),
-                               atol=1e-12)
+                               np.pad(added, ((3, 1), (3, 1))), atol=1e-12)
+
+
+def test_tilt_term_widens_roll_and_pitch_only() -> None:
+    cov = np.diag([1e-6, 2e-6, 3e-6, 1e-3, 1e-3, 1e-2, 1e-6])
+    out = uncertainty.add_tilt(cov, math.radians(0.1))
+    np.testing.assert_allclose(np.diag(out) - np.diag(cov),
+                               [math.radians(0.1) ** 2] * 2 + [0.0] * 5)
+    np.testing.assert_array_equal(out - np.diag(np.diag(out)), cov - np.diag(np.diag(cov)))
+
+
+def test_model_term_is_capped_at_the_fits_own_variance() -> None:
+    cov = np.diag([0.04 ** 2, 0.02 ** 2, 0.1 ** 2])
+    small = np.array([0.03, 0.0, 0.0])   # within the fit's precision: counted whole
+    np.testing.assert_allclose(uncertainty.model_term(small, cov), np.diag([9e-4, 0.0, 0.0]))
+    large = np.array([0.0, 2.0, 0.0])    # far beyond it: at most doubles the variance
+    np.testing.assert_allclose(uncertainty.model_term(large, cov), np.diag([0.0, 4e-4, 0.0]))
+    np.testing.assert_array_equal(uncertainty.model_term(np.zeros(3), cov), np.zeros((3, 3)))
 
 
 # --- failure ------------------------------------------------------------------------------

@@ -1,0 +1,74 @@
+"""pipeline: the stage-6 retry at other clock offsets."""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import pytest
+
+from radar_calib_ros import pipeline
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.errors import InsufficientDataError
+from radar_calib_ros.types import Extrinsics, HypothesisSelection
+
+
+def _selection(n_tracks: int) -> HypothesisSelection:
+    return HypothesisSelection(
+        hypotheses=(), labels=np.zeros(0, np.int64), accepted_label=0, mean_angles_deg={},
+        accepted_track_ids=tuple(range(n_tracks)), extrinsics=Extrinsics(np.eye(3), np.ones(3)),
+        n_correspondences=100 * n_tracks)
+
+
+def _fake_stage6(monkeypatch: pytest.MonkeyPatch, agreeing: dict[float, int]) -> list[float]:
+    """Stage 6 that agrees only at the clock offsets in ``agreeing`` (offset -> tracks)."""
+    tried: list[float] = []
+
+    def generate(tracks: Any, recording: Any, ground: Any, config: CalibConfig) -> list[Any]:
+        tried.append(round(config.sync.time_offset, 6))
+        return []
+
+    def prune(hyps: Any, tracks: Any, recording: Any, ground: Any,
+              config: CalibConfig) -> HypothesisSelection:
+        n = agreeing.get(round(config.sync.time_offset, 6))
+        if n is None:
+            raise InsufficientDataError('hypotheses', 'hypotheses do not agree')
+        return _selection(n)
+    monkeypatch.setattr(pipeline.hypotheses, 'generate_hypotheses', generate)
+    monkeypatch.setattr(pipeline.hypotheses, 'prune_hypotheses', prune)
+    return tried
+
+
+def _config(**sync: Any) -> CalibConfig:
+    base = CalibConfig()
+    return dataclasses.replace(base, sync=dataclasses.replace(base.sync, **sync))
+
+
+def test_agreement_at_the_given_offset_is_taken_as_it_is(monkeypatch: pytest.MonkeyPatch) -> None:
+    tried = _fake_stage6(monkeypatch, {0.0: 3, 0.1: 6})
+    _, selection = pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+    assert tried == [0.0] and selection.extrinsics.time_offset_s == 0.0
+
+
+def test_no_agreement_retries_other_offsets_and_keeps_the_best(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Passes in opposite directions disagree under a clock offset: the offsets within
+    sync.max_time_offset are tried and the one with most agreeing tracks starts stage 7."""
+    tried = _fake_stage6(monkeypatch, {0.15: 4, 0.2: 6, -0.25: 5})
+    _, selection = pipeline._hypotheses((), None, None,  # type: ignore[arg-type]
+                                        _config(time_offset=0.0, max_time_offset=0.25))
+    assert selection.extrinsics.time_offset_s == pytest.approx(0.2)
+    expected = [0.0] + [s * k * 0.05 for k in range(1, 6) for s in (1, -1)]
+    assert sorted(tried) == pytest.approx(sorted(expected))
+
+
+def test_no_agreement_anywhere_or_no_offset_estimation_keeps_the_reason(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    tried = _fake_stage6(monkeypatch, {})
+    with pytest.raises(InsufficientDataError, match=r'do not agree \(also at clock offsets'):
+        pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+    tried.clear()
+    with pytest.raises(InsufficientDataError, match='do not agree$'):
+        pipeline._hypotheses((), None, None,  # type: ignore[arg-type]
+                             _config(estimate_time_offset=False))
+    assert tried == [0.0]
