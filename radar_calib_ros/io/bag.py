@@ -13,6 +13,7 @@ that is not there, a message we cannot decode) becomes one ``BagReadError`` or
 from __future__ import annotations
 
 import dataclasses
+import logging
 import sqlite3
 import struct
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -42,6 +43,11 @@ RADAR_TYPES = (msgs.POINTCLOUD2, msgs.RADARSCAN)
 ROLE_TYPES: dict[str, tuple[str, ...]] = {
     'radar': RADAR_TYPES, 'navsat': (msgs.NAVSATFIX,), 'odom': (msgs.ODOMETRY,)}
 _ROLE_PARAMETER = {'radar': 'radar_topic', 'navsat': 'navsat_topic', 'odom': 'odom_topic'}
+#: The two vehicle-pose roles: either alone gives a pose (NavSatFix with the course over
+#: ground, Odometry with vehicle.odom_is_utm), so a named one that is absent is dropped,
+#: with a warning, while the other is there.
+_POSE_ROLES = ('navsat', 'odom')
+_LOG = logging.getLogger(__name__)
 
 # What a damaged storage file raises inside rosbags' readers besides its own errors: sqlite3
 # for a damaged database, struct/EOF/Value errors from the mcap record parser.
@@ -66,7 +72,9 @@ def select_topics(topics: Mapping[str, str], config: CalibConfig) -> dict[str, s
     A topic parameter (``radar_topic``, ...) matches with or without its leading '/'. When
     the parameter was not set explicitly (``config.explicit``) and its default name is not
     in the bag, the topic is picked by message type. An explicitly empty parameter turns
-    that role off (None).
+    that role off (None). A named vehicle-pose topic (NavSatFix or Odometry) that is not
+    in the bag is dropped with a warning when the other one is there (a parameters file
+    written for both, a recording with one).
 
     Parameters
     ----------
@@ -82,11 +90,13 @@ def select_topics(topics: Mapping[str, str], config: CalibConfig) -> dict[str, s
     Raises
     ------
     BagReadError
-        A requested topic is not in the bag (the message lists those there) or has the wrong
-        type; several topics of a role's type and no parameter naming one (they are
-        listed); no radar topic at all.
+        A requested topic is not in the bag (the message lists those there; for a pose topic
+        only when the other pose topic is missing too) or has the wrong type; several topics
+        of a role's type and no parameter naming one (they are listed); no radar topic at
+        all.
     """
     chosen: dict[str, str | None] = {}
+    absent: dict[str, str] = {}
     for role, parameter in _ROLE_PARAMETER.items():
         wanted: str = getattr(config, parameter)
         explicit = parameter in config.explicit
@@ -103,8 +113,13 @@ def select_topics(topics: Mapping[str, str], config: CalibConfig) -> dict[str, s
             if named:
                 raise BagReadError(f'{parameter} {wanted!r} has type {topics[named[0]]}, '
                                    f'expected {type_names}')
-            raise BagReadError(f'{parameter} {wanted!r} is not in the bag; topics there: '
-                               f'{_listing(topics)}')
+            missing = (f'{parameter} {wanted!r} is not in the bag; topics there: '
+                       f'{_listing(topics)}')
+            if role not in _POSE_ROLES:
+                raise BagReadError(missing)
+            absent[role] = missing
+            chosen[role] = None
+            continue
         candidates = sorted(t for t, msgtype in topics.items() if msgtype in accepted)
         if len(candidates) > 1:
             raise BagReadError(f'several {type_names} topics and no {parameter} naming one: '
@@ -113,6 +128,12 @@ def select_topics(topics: Mapping[str, str], config: CalibConfig) -> dict[str, s
     if chosen['radar'] is None:
         raise BagReadError(f'no radar topic ({" or ".join(RADAR_TYPES)}) in the bag; topics '
                            f'there: {_listing(topics)}')
+    for role, missing in absent.items():
+        other = _POSE_ROLES[1 - _POSE_ROLES.index(role)]
+        if chosen[other] is None:
+            raise BagReadError(missing)
+        _LOG.warning('%s: the vehicle pose comes from %s %s alone', missing,
+                     _ROLE_PARAMETER[other], chosen[other])
     return chosen
 
 

@@ -232,6 +232,24 @@ def test_select_explicit_missing_lists_topics() -> None:
         select_topics(TOPICS, config)
 
 
+def test_select_named_pose_topic_absent_falls_back_to_the_other(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A parameters file naming both pose topics (config/calibrator.yaml does) and a
+    NavSatFix-only recording: the odometry is dropped with a warning, not refused; with
+    neither pose topic there, the named one is the error."""
+    config = CalibConfig.from_mapping({'navsat_topic': '/vehicle/fix',
+                                       'odom_topic': '/vehicle/odom'})
+    fix_only = {k: v for k, v in TOPICS.items() if k != '/vehicle/odom'}
+    with caplog.at_level('WARNING', logger='radar_calib_ros'):
+        assert select_topics(fix_only, config) == {
+            'radar': '/radar/points', 'navsat': '/vehicle/fix', 'odom': None}
+    assert "odom_topic '/vehicle/odom' is not in the bag" in caplog.text
+    assert 'from navsat_topic /vehicle/fix alone' in caplog.text
+    radar_only = {'/radar/points': m.POINTCLOUD2}
+    with pytest.raises(BagReadError, match="navsat_topic '/vehicle/fix' is not in the bag"):
+        select_topics(radar_only, config)
+
+
 def test_select_explicit_wrong_type() -> None:
     config = CalibConfig.from_mapping({'odom_topic': '/lidar'})
     with pytest.raises(BagReadError, match="odom_topic '/lidar' has type sensor_msgs/msg/Imu"):
