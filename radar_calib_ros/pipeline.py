@@ -226,7 +226,10 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
         report.extra['vehicle_detection_ratio'] = detection
         report.extra['radial_velocity_sign'] = sign * config.radar.velocity_sign
         notes = _data_notes(recording, flip_note if sign < 0 else None)
-        report.extra['data_notes'] = notes
+        if notes:
+            # only when there are some: an empty list in result.yaml has no parameter type,
+            # and a node declaring its parameters from the file would refuse it
+            report.extra['data_notes'] = notes
         report = replace(report, advice=(*notes, *report.advice))
     if progress is not None:
         progress('done', 1.0)

@@ -104,9 +104,21 @@ def _plain(value: Any) -> Any:
 
 
 def result_yaml_text(calibration: Mapping[str, Any]) -> str:
-    """Text of ``result.yaml``: a ROS 2 parameters file (``/**: ros__parameters:``)."""
-    doc = {'/**': {'ros__parameters': {'calibration': dict(calibration)}}}
+    """Text of ``result.yaml``: a ROS 2 parameters file (``/**: ros__parameters:``).
+
+    Empty lists (``quality.advice`` when there is none) are left out: a ROS 2 parameter
+    needs a type, an empty YAML sequence has none, and a node that declares its
+    parameters from the file (``automatically_declare_parameters_from_overrides``) refuses
+    it and does not start. ``load_result`` puts an absent ``advice`` back as empty; the
+    JSON form keeps them.
+    """
+    doc = {'/**': {'ros__parameters': {'calibration': _without_empty_lists(calibration)}}}
     return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+
+
+def _without_empty_lists(mapping: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: _without_empty_lists(v) if isinstance(v, Mapping) else v
+            for k, v in mapping.items() if not (isinstance(v, (list, tuple)) and not v)}
 
 
 def write_atomic(path: str | Path, text: str) -> None:
@@ -177,6 +189,8 @@ def load_result(path: str | Path) -> dict[str, Any]:
                               'quaternion of 4 numbers')
     if not isinstance(doc['epsg'], int):
         raise ResultFileError(f'result file {str(path)!r}: epsg must be an integer')
+    if isinstance(doc.get('quality'), dict):
+        doc['quality'].setdefault('advice', [])  # left out of result.yaml when empty
     return doc
 
 

@@ -329,3 +329,31 @@ def test_parameter_set_is_validated_and_applied(tmp_path: Path) -> None:
         assert node.describe_parameter('radar_topic').read_only
     finally:
         node.shutdown()
+
+
+def test_result_file_loads_as_parameters_of_another_node(tmp_path: Path) -> None:
+    """result.yaml is a parameters file other nodes take (CONTRACT.md): a node that declares
+    its parameters from it starts, with empty advice too (an empty list has no type)."""
+    from radar_calib_ros.io.geo import LocalFrame
+    from radar_calib_ros.result import calibration_dict, write_result_yaml
+    from radar_calib_ros.types import Extrinsics
+
+    cal = calibration_dict(Extrinsics(np.eye(3), np.array([1.0, 2.0, 480.0])),
+                           LocalFrame.at(48.4, 9.99),
+                           quality={'inlier_ratio': 0.7, 'advice': [],
+                                    'sigma': {'translation_m': 0.05}})
+    path = tmp_path / 'result.yaml'
+    write_result_yaml(path, cal)
+    context = rclpy.Context()
+    rclpy.init(args=['--ros-args', '--params-file', str(path)], context=context)
+    try:
+        node = rclpy.create_node('result_reader', context=context,
+                                 automatically_declare_parameters_from_overrides=True)
+        try:
+            translation = node.get_parameter('calibration.translation').value
+            assert list(translation) == pytest.approx(cal['translation'])
+            assert node.get_parameter('calibration.quality.sigma.translation_m').value == 0.05
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
