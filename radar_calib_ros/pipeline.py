@@ -18,7 +18,7 @@ from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import associate, cluster, ground_plane, hypotheses, moving, polygon
 from radar_calib_ros.core import quality, refine, track
 from radar_calib_ros.errors import InsufficientDataError
-from radar_calib_ros.recording import Recording
+from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.result import calibration_dict, quality_dict
 from radar_calib_ros.types import (
     Extrinsics, GroundPlane, Hypothesis, HypothesisSelection, QualityReport, Refinement,
@@ -154,6 +154,32 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
     return hyps, replace(selection, extrinsics=shifted_ext)
 
 
+def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:
+    """Raise when no radar frame can be paired with a vehicle pose at all, naming why
+    (otherwise stage 6 would report a vehicle 'never seen')."""
+    sync = config.sync
+    offset_ns = int(round(sync.time_offset * 1e9))
+    stamps = recording.frame_stamps_ns + offset_ns
+    if interpolate_poses(recording.vehicle, stamps, sync.max_pose_gap).valid.any():
+        return
+    poses = recording.vehicle.stamps_ns
+    if stamps[-1] < poses[0] or stamps[0] > poses[-1]:
+        raise InsufficientDataError(
+            'read', f'the radar frames ({_span(stamps)}, sync.time_offset included) and the '
+            f'vehicle poses ({_span(poses)}) do not overlap in time; check the clocks and '
+            'sync.time_offset')
+    interval = float(np.median(np.diff(poses))) * 1e-9
+    raise InsufficientDataError(
+        'read', f'the vehicle poses come every {interval:.2f} s (median), more than '
+        f'sync.max_pose_gap {sync.max_pose_gap:g} s, so no radar frame can be paired with a '
+        'pose: record the poses faster or, for straight steady driving, raise '
+        'sync.max_pose_gap')
+
+
+def _span(stamps_ns: np.ndarray) -> str:
+    return f'{stamps_ns[0] * 1e-9:.3f}-{stamps_ns[-1] * 1e-9:.3f} s'
+
+
 def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
     source: a flipped radial-velocity sign, an Odometry twist that did not describe the
@@ -183,6 +209,7 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
     targets = recording.targets
     if len(targets) == 0:
         raise InsufficientDataError('moving', 'the recording has no radar target')
+    _check_pose_stream(recording, config)
     tracked = track_targets(recording, config, clock=stage)
     if tracked.target_index.size == 0:
         raise InsufficientDataError('moving', 'no moving radar target in the recording')

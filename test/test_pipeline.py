@@ -72,3 +72,37 @@ def test_no_agreement_anywhere_or_no_offset_estimation_keeps_the_reason(
         pipeline._hypotheses((), None, None,  # type: ignore[arg-type]
                              _config(estimate_time_offset=False))
     assert tried == [0.0]
+
+
+def _recording(fix_period_s: float, radar_start_s: float = 0.0) -> Any:
+    from radar_calib_ros.io.geo import LocalFrame
+    from radar_calib_ros.recording import RecordingBuilder
+    from radar_calib_ros.types import FixSample, RadarFrame
+
+    t0 = 1_720_000_000_000_000_000
+    builder = RecordingBuilder(CalibConfig())
+    for k in range(150):
+        stamp = t0 + int((radar_start_s + k / 15.0) * 1e9)
+        builder.add_radar_frame(RadarFrame(stamp, np.array([[20.0, 1.0, 0.0]]), np.ones(1)))
+    frame = LocalFrame.at(48.1, 11.5)
+    for k in range(int(10.0 / fix_period_s) + 1):
+        t = k * fix_period_s
+        lat, lon, alt = frame.local_to_geodetic(np.array([[10.0 * t, 0.0, 0.0]]))
+        builder.add_fix(FixSample(t0 + int(t * 1e9), lat[0], lon[0], alt[0], 2))
+    return builder.build()
+
+
+def test_poses_too_sparse_or_apart_in_time_are_named() -> None:
+    """Fixes at 1 Hz against sync.max_pose_gap 0.5 s, or radar and poses that never
+    overlap: the reason says so (stage 6 would report a vehicle 'never seen')."""
+    from radar_calib_ros.pipeline import run_calibration
+
+    with pytest.raises(InsufficientDataError, match=r'poses come every 1.00 s .* more than '
+                       r'sync.max_pose_gap 0.5 s'):
+        run_calibration(_recording(1.0), CalibConfig())
+    with pytest.raises(InsufficientDataError, match='do not overlap in time'):
+        run_calibration(_recording(0.1, radar_start_s=100.0), CalibConfig())
+    # poses fast enough: past this check (and failing later, for want of a vehicle)
+    with pytest.raises(InsufficientDataError) as err:
+        run_calibration(_recording(0.1), CalibConfig())
+    assert 'max_pose_gap' not in str(err.value) and 'overlap' not in str(err.value)

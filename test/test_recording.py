@@ -277,3 +277,25 @@ def test_odometry_twist_checked_against_the_positions(twist: str,
     from radar_calib_ros.pipeline import _data_notes
     notes = _data_notes(rec, None)
     assert len(notes) == (twist != 'body') and all('REP-105' in n for n in notes)
+
+
+def test_a_good_twist_is_kept_under_standalone_gnss_noise() -> None:
+    """Metres of fix noise must not condemn a correct twist (the check differentiates the
+    positions over +-1 s): the twist stays, no counter."""
+    rng = np.random.default_rng(3)
+    frame = LocalFrame.at(LAT0, LON0)
+    t = np.arange(0.0, 60.0, 0.1)
+    heading = math.radians(30.0)
+    xy = 10.0 * t[:, None] * np.array([math.cos(heading), math.sin(heading)])
+    local = np.column_stack([xy + rng.normal(0.0, 1.5, xy.shape), np.zeros(t.size)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    yaw_true = heading + float(frame.local_convergence_rad(lat[:1], lon[:1])[0])
+    for i in range(t.size):
+        stamp = T0 + int(round(t[i] * 1e9))
+        builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 0))
+        builder.add_odometry(_odom(stamp, yaw_true, 10.0))
+    rec = builder.build()
+    assert not any(k.startswith('odometry_twist') for k in rec.counters)
+    np.testing.assert_allclose(np.hypot(*rec.vehicle.velocities_mps[:, :2].T), 10.0, atol=1e-6)
