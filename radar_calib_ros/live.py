@@ -805,7 +805,8 @@ def _encode_samples(builder: RecordingBuilder, config: CalibConfig,
             yield radar_topic, msgs.POINTCLOUD2, sample.stamp_ns, msg
         elif isinstance(sample, FixSample):
             msg = msgs.encode_navsatfix(store, sample.stamp_ns, 'gnss', sample.lat_deg,
-                                        sample.lon_deg, sample.alt_m, status=0)
+                                        sample.lon_deg, sample.alt_m, status=sample.status,
+                                        position_sigma_m=sample.position_sigma_m)
             yield navsat_topic, msgs.NAVSATFIX, sample.stamp_ns, msg
         else:
             msg = msgs.encode_odometry(store, sample.stamp_ns, config.world.frame_id,

@@ -189,6 +189,20 @@ def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
         notes.append('The Odometry twist did not describe the vehicle\'s motion (zero, or in '
                      'another frame): the velocity was taken from the positions. Check the '
                      'driver: REP-105 puts the twist in child_frame_id.')
+    fixes = recording.counters.get('fixes', 0)
+    standalone = recording.counters.get('fixes_unaugmented', 0)
+    if fixes and standalone > 0.5 * fixes:
+        if recording.fix_sigma_m is not None:
+            declared = (f'they declare {recording.fix_sigma_m[0]:.2f} m horizontal and '
+                        f'{recording.fix_sigma_m[1]:.2f} m vertical (1 sigma), which the '
+                        'reported uncertainty includes')
+        else:
+            declared = ('they declare no covariance, so the reported uncertainty cannot '
+                        'include their error')
+        notes.append(f'{100 * standalone / fixes:.0f} % of the vehicle\'s fixes are standalone '
+                     'GNSS (NavSatFix status 0: no RTK, SBAS or GBAS); their error passes '
+                     f'into the radar\'s position one to one, and {declared}. Calibrate with '
+                     'an RTK fix.')
     if recording.counters.get('odometry_twist_in_parent_frame'):
         notes.append('The Odometry twist is in the parent (ENU) frame and was read so; REP-105 '
                      'puts it in child_frame_id.')

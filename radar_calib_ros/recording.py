@@ -37,7 +37,9 @@ class Recording:
     frame_stamps_ns : (f,) sorted radar header stamps (``sync.time_offset`` NOT applied);
     targets : all finite targets, ``targets.frame_index`` indexes ``frame_stamps_ns``;
     vehicle : poses in ``frame`` (the local metric frame);
-    counters : received / dropped counts by reason (e.g. ``fixes_no_fix``).
+    counters : received / dropped counts by reason (e.g. ``fixes_no_fix``);
+    fix_sigma_m : median 1-sigma (horizontal, vertical) the vehicle's fixes declare in their
+        ``position_covariance`` [m], None when none declares one.
     """
 
     frame_stamps_ns: I64
@@ -46,6 +48,7 @@ class Recording:
     frame: LocalFrame
     radar_frame_id: str = 'radar'
     counters: dict[str, int] = field(default_factory=dict)
+    fix_sigma_m: tuple[float, float] | None = None
 
     @property
     def target_stamps_ns(self) -> I64:
@@ -75,7 +78,8 @@ class RecordingBuilder:
         self._frame_stamps: list[int] = []
         self._frame_positions: list[F64] = []
         self._frame_velocities: list[F64] = []
-        self._fixes: list[tuple[int, float, float, float]] = []
+        # (stamp, lat, lon, alt, status, sigma horizontal, sigma vertical)
+        self._fixes: list[tuple[int, float, float, float, int, float, float]] = []
         # Odometry as flat tuples of numbers, not OdomSample objects: such tuples are not
         # tracked by Python's cyclic garbage collector, so a long buffer (90,000 samples in
         # 30 minutes) does not make every full collection in the node pause longer.
@@ -111,7 +115,10 @@ class RecordingBuilder:
                 -90.0 <= fix.lat_deg <= 90.0 and -180.0 <= fix.lon_deg <= 180.0):
             self.counters['fixes_invalid'] += 1
             return False
-        self._fixes.append((int(fix.stamp_ns), fix.lat_deg, fix.lon_deg, fix.alt_m))
+        if fix.status == 0:  # STATUS_FIX: no RTK, SBAS or GBAS augmentation
+            self.counters['fixes_unaugmented'] += 1
+        self._fixes.append((int(fix.stamp_ns), fix.lat_deg, fix.lon_deg, fix.alt_m,
+                            int(fix.status), *map(float, fix.position_sigma_m)))
         self._nbytes += _FIX_OVERHEAD_BYTES
         return True
 
@@ -197,7 +204,7 @@ class RecordingBuilder:
 
     def samples(self) -> Iterator[RadarFrame | FixSample | OdomSample]:
         """Every buffered sample, in stamp order (radar velocities as received, before
-        ``radar.velocity_sign``; fixes with status 0 since only usable fixes are kept)."""
+        ``radar.velocity_sign``; fixes with their status and covariance sigmas)."""
         items: list[tuple[int, int, int]] = []
         items.extend((s, 0, i) for i, s in enumerate(self._frame_stamps))
         items.extend((f[0], 1, i) for i, f in enumerate(self._fixes))
@@ -207,8 +214,8 @@ class RecordingBuilder:
             if kind == 0:
                 yield RadarFrame(stamp, self._frame_positions[i], self._frame_velocities[i])
             elif kind == 1:
-                _, lat, lon, alt = self._fixes[i]
-                yield FixSample(stamp, lat, lon, alt, 0)
+                _, lat, lon, alt, status, sigma_h, sigma_v = self._fixes[i]
+                yield FixSample(stamp, lat, lon, alt, status, (sigma_h, sigma_v))
             else:
                 yield _odom_sample(self._odoms[i])
 
@@ -239,7 +246,19 @@ class RecordingBuilder:
         frame, vehicle = self._build_vehicle()
         counters = dict(self.counters)
         return Recording(frame_stamps, targets, vehicle, frame,
-                         radar_frame_id=self._config.radar.frame_id, counters=counters)
+                         radar_frame_id=self._config.radar.frame_id, counters=counters,
+                         fix_sigma_m=self._fix_sigma())
+
+    def _fix_sigma(self) -> tuple[float, float] | None:
+        """Median declared 1-sigma of the fixes (horizontal, vertical), None if none."""
+        if not self._fixes:
+            return None
+        sigma = np.array([f[5:7] for f in self._fixes], np.float64)
+        known = np.all(np.isfinite(sigma), axis=1)
+        if not known.any():
+            return None
+        h, v = np.median(sigma[known], axis=0)
+        return float(h), float(v)
 
     def _build_vehicle(self) -> tuple[LocalFrame, VehicleTrack]:
         cfg = self._config

@@ -10,6 +10,7 @@ site, z = ellipsoidal altitude); only the result is converted to UTM.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -47,13 +48,16 @@ class RadarFrame:
 
 @dataclass(frozen=True, slots=True)
 class FixSample:
-    """One NavSatFix: WGS 84 latitude/longitude [deg], ellipsoidal altitude [m]."""
+    """One NavSatFix: WGS 84 latitude/longitude [deg], ellipsoidal altitude [m], its
+    status, and its 1-sigma (horizontal, vertical) from ``position_covariance`` [m] (NaN
+    when the covariance type is unknown)."""
 
     stamp_ns: int
     lat_deg: float
     lon_deg: float
     alt_m: float
     status: int
+    position_sigma_m: tuple[float, float] = (math.nan, math.nan)
 
 
 @dataclass(frozen=True, slots=True)

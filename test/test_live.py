@@ -152,7 +152,7 @@ def consistent(live: LiveCalibrator) -> None:
         assert positions.ndim == 2 and positions.shape[1] == 3
         assert velocities.shape == (positions.shape[0],)
         assert np.isfinite(positions).all() and np.isfinite(velocities).all()
-    for stamp, lat, lon, alt in builder._fixes:
+    for stamp, lat, lon, alt, *_ in builder._fixes:
         assert stamp > 0 and math.isfinite(lat + lon + alt)
     assert builder.nbytes() == builder._count_nbytes()
     stamps = builder.stamp_range_ns()

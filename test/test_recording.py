@@ -299,3 +299,26 @@ def test_a_good_twist_is_kept_under_standalone_gnss_noise() -> None:
     rec = builder.build()
     assert not any(k.startswith('odometry_twist') for k in rec.counters)
     np.testing.assert_allclose(np.hypot(*rec.vehicle.velocities_mps[:, :2].T), 10.0, atol=1e-6)
+
+
+def test_fix_status_and_covariance_are_kept_and_summarised() -> None:
+    """Standalone fixes are counted, their declared sigmas summarised (median) and kept
+    for ~/save_recording; the calibration's advice names a mostly standalone drive."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    frame = LocalFrame.at(LAT0, LON0)
+    for k in range(10):
+        lat, lon, alt = frame.local_to_geodetic(np.array([[10.0 * k, 0.0, 0.0]]))
+        sigma = (1.5, 2.5) if k < 7 else (math.nan, math.nan)
+        builder.add_fix(FixSample(T0 + k * 10**9, lat[0], lon[0], alt[0], 0 if k < 8 else 2,
+                                  sigma))
+    rec = builder.build()
+    assert rec.counters['fixes_unaugmented'] == 8
+    assert rec.fix_sigma_m == pytest.approx((1.5, 2.5))
+    fixes = [s for s in builder.samples() if isinstance(s, FixSample)]
+    assert [f.status for f in fixes] == [0] * 8 + [2] * 2
+    assert fixes[0].position_sigma_m == pytest.approx((1.5, 2.5))
+    notes = _data_notes(rec, None)
+    assert len(notes) == 1 and '80 % of the vehicle' in notes[0] and '1.50 m' in notes[0]

@@ -836,6 +836,13 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     model_difference = (np.zeros(3) if alternative_translation is None
                         else np.asarray(alternative_translation, float) - est.translation_m)
     cov7[3:6, 3:6] += uncertainty.model_term(model_difference, cov7[3:6, 3:6])
+    if recording.fix_sigma_m is not None:
+        # The vehicle's own position error passes one to one into the radar's, and a GNSS
+        # error drifts over minutes, so the passes share it: the fixes' declared 1-sigma
+        # (median over the drive) joins the translation (RTK: ~2 cm, nothing; a standalone
+        # fix: metres, which the fit cannot see).
+        sigma_h, sigma_v = recording.fix_sigma_m
+        cov7[3:6, 3:6] += np.diag([sigma_h ** 2, sigma_h ** 2, sigma_v ** 2])
     diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
                                config, fit, rounds, scatter)
     diagnostics.update({

@@ -11,6 +11,7 @@ the node's ``~/save_recording`` write bags with them).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -267,8 +268,13 @@ def decode_radarscan(msg: Any) -> RadarFrame:
 def decode_navsatfix(msg: Any) -> FixSample:
     """One ``sensor_msgs/msg/NavSatFix``; no filtering (``RecordingBuilder.add_fix`` drops
     and counts no-fix and non-finite samples)."""
+    sigma = (math.nan, math.nan)
+    if int(getattr(msg, 'position_covariance_type', 0)) > 0:  # 0: COVARIANCE_TYPE_UNKNOWN
+        c = [float(v) for v in msg.position_covariance]
+        if len(c) == 9 and all(math.isfinite(v) for v in c):
+            sigma = (math.sqrt(max(0.5 * (c[0] + c[4]), 0.0)), math.sqrt(max(c[8], 0.0)))
     return FixSample(stamp_ns(msg.header), float(msg.latitude), float(msg.longitude),
-                     float(msg.altitude), int(msg.status.status))
+                     float(msg.altitude), int(msg.status.status), sigma)
 
 
 def decode_odometry(msg: Any) -> OdomSample:
@@ -369,20 +375,25 @@ def encode_pointcloud(typestore: Typestore, stamp_ns: int, frame_id: str,
 
 def encode_navsatfix(typestore: Typestore, stamp_ns: int, frame_id: str, lat_deg: float,
                      lon_deg: float, alt_m: float, status: int = 2,
-                     position_sigma_m: float = 0.02) -> Any:
+                     position_sigma_m: float | tuple[float, float] = 0.02) -> Any:
     """A ``sensor_msgs/msg/NavSatFix`` (WGS 84, ellipsoidal altitude).
 
     ``status`` 2 is STATUS_GBAS_FIX (RTK), -1 STATUS_NO_FIX; the covariance is diagonal
-    with ``position_sigma_m`` on every axis (COVARIANCE_TYPE_DIAGONAL_KNOWN).
+    with ``position_sigma_m`` on every axis, or (horizontal, vertical)
+    (COVARIANCE_TYPE_DIAGONAL_KNOWN); NaN writes COVARIANCE_TYPE_UNKNOWN.
     """
     types = typestore.types
+    sigma_h, sigma_v = (position_sigma_m if isinstance(position_sigma_m, tuple)
+                        else (position_sigma_m, position_sigma_m))
+    known = math.isfinite(sigma_h) and math.isfinite(sigma_v)
     covariance = np.zeros(9)
-    covariance[::4] = position_sigma_m ** 2
+    if known:
+        covariance[:] = np.diag([sigma_h ** 2, sigma_h ** 2, sigma_v ** 2]).ravel()
     return types[NAVSATFIX](
         header=_header(typestore, stamp_ns, frame_id),
         status=types['sensor_msgs/msg/NavSatStatus'](status=int(status), service=1),
         latitude=float(lat_deg), longitude=float(lon_deg), altitude=float(alt_m),
-        position_covariance=covariance, position_covariance_type=2)
+        position_covariance=covariance, position_covariance_type=2 if known else 0)
 
 
 def encode_odometry(typestore: Typestore, stamp_ns: int, frame_id: str, child_frame_id: str,

@@ -333,6 +333,17 @@ def test_model_check_adds_the_refit_difference_to_the_covariance() -> None:
                                np.pad(added, ((3, 1), (3, 1))), atol=1e-12)
 
 
+def test_declared_fix_sigma_joins_the_translation_covariance() -> None:
+    scene = make_scene(9, model='interior', geometry='head_on')
+    declared = dataclasses.replace(scene, recording=dataclasses.replace(
+        scene.recording, fix_sigma_m=(1.0, 2.0)))
+    plain, with_gnss = _run(scene), _run(declared)
+    np.testing.assert_array_equal(with_gnss.extrinsics.translation_m,
+                                  plain.extrinsics.translation_m)
+    np.testing.assert_allclose(with_gnss.covariance - plain.covariance,
+                               np.diag([0.0, 0.0, 0.0, 1.0, 1.0, 4.0, 0.0]), atol=1e-9)
+
+
 def test_tilt_term_widens_roll_and_pitch_only() -> None:
     cov = np.diag([1e-6, 2e-6, 3e-6, 1e-3, 1e-3, 1e-2, 1e-6])
     out = uncertainty.add_tilt(cov, math.radians(0.1))

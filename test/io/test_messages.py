@@ -291,6 +291,15 @@ def test_encode_navsatfix_and_odometry_round_trip(ts: Any) -> None:
     assert (sample.stamp_ns, sample.lat_deg, sample.lon_deg, sample.alt_m, sample.status) == (
         STAMP_NS, 48.123456789, 11.987654321, 523.25, -1)
     np.testing.assert_allclose(np.diag(fix.position_covariance.reshape(3, 3)), [9e-4] * 3)
+    assert sample.position_sigma_m == pytest.approx((0.03, 0.03))
+    # (horizontal, vertical) sigmas, and an unknown covariance read as NaN
+    fix = m.encode_navsatfix(ts, STAMP_NS, 'gnss', 48.1, 11.9, 500.0, status=0,
+                             position_sigma_m=(1.5, 2.5))
+    assert m.decode_navsatfix(fix).position_sigma_m == pytest.approx((1.5, 2.5))
+    fix = m.encode_navsatfix(ts, STAMP_NS, 'gnss', 48.1, 11.9, 500.0,
+                             position_sigma_m=(math.nan, math.nan))
+    assert fix.position_covariance_type == 0
+    assert all(math.isnan(v) for v in m.decode_navsatfix(fix).position_sigma_m)
     q = (0.0, 0.0, math.sin(0.4), math.cos(0.4))
     odom = m.encode_odometry(ts, STAMP_NS + 5, 'map', 'base_link', (1.0, -2.0, 3.5), q,
                              (12.0, 0.5, -0.25), 0.3)
