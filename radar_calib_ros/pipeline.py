@@ -189,6 +189,11 @@ def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
         notes.append('The Odometry twist did not describe the vehicle\'s motion (zero, or in '
                      'another frame): the velocity was taken from the positions. Check the '
                      'driver: REP-105 puts the twist in child_frame_id.')
+    if not recording.has_elevation:
+        notes.append('The radar reports no elevation (z = 0 for every target: a 2-D radar): '
+                     'roll, pitch and altitude cannot be measured from its targets; the '
+                     'result carries them from the fit with an uncertainty of degrees and a '
+                     'metre; measure them at the mount.')
     fixes = recording.counters.get('fixes', 0)
     standalone = recording.counters.get('fixes_unaugmented', 0)
     if fixes and standalone > 0.5 * fixes:

@@ -56,6 +56,12 @@ class Recording:
         return self.frame_stamps_ns[self.targets.frame_index]
 
     @property
+    def has_elevation(self) -> bool:
+        """False for a 2-D radar: (almost) every target at z = 0 in the sensor frame."""
+        z = self.targets.positions_m[:, 2]
+        return bool(z.size == 0 or np.mean(np.abs(z) < 1e-6) < 0.99)
+
+    @property
     def duration_s(self) -> float:
         """Span of the radar frames [s]."""
         if self.frame_stamps_ns.size < 2:

@@ -106,3 +106,17 @@ def test_poses_too_sparse_or_apart_in_time_are_named() -> None:
     with pytest.raises(InsufficientDataError) as err:
         run_calibration(_recording(0.1), CalibConfig())
     assert 'max_pose_gap' not in str(err.value) and 'overlap' not in str(err.value)
+
+
+def test_a_2d_radar_is_named_in_the_advice() -> None:
+    """Targets all at z = 0 (a radar without elevation): roll, pitch and altitude are not
+    measured, and the advice says so; a radar with elevation gets no such note."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    flat = _recording(0.1)
+    assert not flat.has_elevation
+    assert any('no elevation' in n for n in _data_notes(flat, None))
+    targets = dataclasses.replace(flat.targets, positions_m=flat.targets.positions_m
+                                  + np.array([0.0, 0.0, -1.5]))
+    tilted = dataclasses.replace(flat, targets=targets)
+    assert tilted.has_elevation and not _data_notes(tilted, None)

@@ -80,6 +80,10 @@ _LOG = logging.getLogger(__name__)
 #: linear beyond, so wheel micro-Doppler (several m/s) and stray targets of other cars keep a
 #: bounded influence while the Gaussian core keeps most of its efficiency.
 _LOSS_SCALE = 1.0
+#: What a 2-D radar leaves of roll/pitch and altitude (1 sigma): a roadside radar's mount is
+#: within a few degrees of level and its height known to about a metre, nothing better.
+_PLANAR_TILT_SIGMA_DEG = 5.0
+_PLANAR_HEIGHT_SIGMA_M = 1.0
 #: Fewest targets a refinement is attempted with.
 _MIN_TARGETS = 30
 #: Fewest targets of a pass (see ``_in_passes``).
@@ -833,6 +837,14 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     cov7 = uncertainty.add_along_boresight(_pose_block(covariance, estimate_tau), est.rotation,
                                            cfg.model_sigma_along_m)
     cov7 = uncertainty.add_tilt(cov7, math.radians(cfg.model_sigma_tilt_deg))
+    if not recording.has_elevation:
+        # A 2-D radar (z = 0 for every target) measures no height: its targets carry no
+        # roll, pitch or altitude (the field of view found from the data is zero wide, so
+        # no target gives height information above), and those come from the start and
+        # second-order effects only. Say so in the covariance rather than report the
+        # jackknife's agreement on values nothing measured.
+        cov7 = uncertainty.add_tilt(cov7, math.radians(_PLANAR_TILT_SIGMA_DEG))
+        cov7[5, 5] += _PLANAR_HEIGHT_SIGMA_M ** 2
     model_difference = (np.zeros(3) if alternative_translation is None
                         else np.asarray(alternative_translation, float) - est.translation_m)
     cov7[3:6, 3:6] += uncertainty.model_term(model_difference, cov7[3:6, 3:6])

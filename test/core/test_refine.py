@@ -344,6 +344,17 @@ def test_declared_fix_sigma_joins_the_translation_covariance() -> None:
                                np.diag([0.0, 0.0, 0.0, 1.0, 1.0, 4.0, 0.0]), atol=1e-9)
 
 
+def test_a_2d_radar_reports_roll_pitch_and_height_as_unmeasured() -> None:
+    scene = make_scene(9, model='interior', geometry='diverse')
+    targets = scene.recording.targets
+    flat = dataclasses.replace(targets, positions_m=targets.positions_m * [1.0, 1.0, 0.0])
+    ref = _run(dataclasses.replace(scene, recording=dataclasses.replace(
+        scene.recording, targets=flat)))
+    sigma = np.sqrt(np.diag(ref.covariance))
+    assert np.degrees(sigma[:2]).min() >= 5.0 and sigma[5] >= 1.0
+    assert np.degrees(sigma[2]) < 1.0  # the yaw is still measured
+
+
 def test_tilt_term_widens_roll_and_pitch_only() -> None:
     cov = np.diag([1e-6, 2e-6, 3e-6, 1e-3, 1e-3, 1e-2, 1e-6])
     out = uncertainty.add_tilt(cov, math.radians(0.1))
