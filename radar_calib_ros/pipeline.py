@@ -208,6 +208,11 @@ def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
                      'GNSS (NavSatFix status 0: no RTK, SBAS or GBAS); their error passes '
                      f'into the radar\'s position one to one, and {declared}. Calibrate with '
                      'an RTK fix.')
+    permille = recording.counters.get('odometry_speed_scale_permille')
+    if permille:
+        notes.append(f'The Odometry twist speed is {-permille / 10:.1f} % off the speed of the '
+                     'fixes on straight driving and was rescaled to them (1 % would tilt the '
+                     'fitted pitch by about half a degree); check the odometry\'s scale.')
     if recording.counters.get('odometry_twist_in_parent_frame'):
         notes.append('The Odometry twist is in the parent (ENU) frame and was read so; REP-105 '
                      'puts it in child_frame_id.')

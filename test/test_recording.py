@@ -322,3 +322,36 @@ def test_fix_status_and_covariance_are_kept_and_summarised() -> None:
     assert fixes[0].position_sigma_m == pytest.approx((1.5, 2.5))
     notes = [n for n in _data_notes(rec, None) if 'GNSS' in n]
     assert len(notes) == 1 and '80 % of the vehicle' in notes[0] and '1.50 m' in notes[0]
+
+
+@pytest.mark.parametrize('scale, expected', [(1.0, None), (1.004, None), (1.01, -10)])
+def test_an_odometry_speed_scale_error_is_rescaled_to_the_fixes(
+        scale: float, expected: int | None) -> None:
+    """Wheel odometry 1 % fast would tilt the fitted pitch by about half a degree: on
+    straight driving the twist speed is brought to the fixes'; within 0.6 % it is left."""
+    frame = LocalFrame.at(LAT0, LON0)
+    t = np.arange(0.0, 60.0, 0.02)
+    heading = math.radians(30.0)
+    speed = 8.0 + 2.0 * np.sin(t / 5.0)      # accelerating and braking
+    s = np.cumsum(speed) * 0.02
+    xy = s[:, None] * np.array([math.cos(heading), math.sin(heading)])
+    rng = np.random.default_rng(4)
+    local = np.column_stack([xy + rng.normal(0.0, 0.02, xy.shape), np.zeros(t.size)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    yaw_true = heading + float(frame.local_convergence_rad(lat[:1], lon[:1])[0])
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i in range(t.size):
+        stamp = T0 + int(round(t[i] * 1e9))
+        builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2))
+        builder.add_odometry(_odom(stamp, yaw_true, scale * speed[i]))
+    rec = builder.build()
+    assert rec.counters.get('odometry_speed_scale_permille') == expected
+    from radar_calib_ros.pipeline import _data_notes
+    notes = [n for n in _data_notes(rec, None) if 'rescaled' in n]
+    assert len(notes) == (expected is not None)
+    assert all('1.0 % off' in n for n in notes)
+    inner = (t > 2.0) & (t < 58.0)
+    measured = np.hypot(*rec.vehicle.velocities_mps[inner, :2].T)
+    tolerance = 0.002 if scale == 1.01 else 0.005
+    assert np.median(np.abs(measured / speed[inner] - 1.0)) < tolerance
