@@ -158,8 +158,7 @@ def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:
     """Raise when no radar frame can be paired with a vehicle pose at all, naming why
     (otherwise stage 6 would report a vehicle 'never seen')."""
     sync = config.sync
-    offset_ns = int(round(sync.time_offset * 1e9))
-    stamps = recording.frame_stamps_ns + offset_ns
+    stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns, sync.time_offset)
     if interpolate_poses(recording.vehicle, stamps, sync.max_pose_gap).valid.any():
         return
     poses = recording.vehicle.stamps_ns
@@ -183,7 +182,7 @@ def _span(stamps_ns: np.ndarray) -> str:
 def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
     source: a flipped radial-velocity sign, an Odometry twist that did not describe the
-    vehicle's motion."""
+    vehicle's motion (or its speed), a radar without elevation, standalone GNSS fixes."""
     notes = [flip_note] if flip_note else []
     if recording.counters.get('odometry_twist_replaced'):
         notes.append('The Odometry twist did not describe the vehicle\'s motion (zero, or in '

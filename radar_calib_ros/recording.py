@@ -314,8 +314,7 @@ class RecordingBuilder:
                 [c * vx - s * vy, s * vx + c * vy]), np.column_stack([vx, vy]),
                 self.counters, yaw_rate)
         else:
-            velocities = np.column_stack([_finite_difference(t, positions[:, i])
-                                          for i in range(3)])
+            velocities = _position_velocities(t, positions)
             yaw, yaw_rate = _course_over_ground(t, velocities, cfg.vehicle.min_heading_speed)
         vehicle = VehicleTrack(stamps, positions, np.asarray(yaw, float), velocities,
                                np.asarray(yaw_rate, float))
@@ -374,10 +373,17 @@ _TWIST_CHECK_SPEED_MPS = 2.0
 _TWIST_CHECK_SAMPLES = 10
 
 
+def _position_velocities(t: F64, positions: F64, half_span_s: float = 0.2) -> F64:
+    """(n, k) velocities of positions (n, k) by central differences (``_finite_difference``)."""
+    return np.column_stack([_finite_difference(t, positions[:, i], half_span_s)
+                            for i in range(positions.shape[1])])
+
+
 def _checked_twist(t: F64, positions: F64, twist_world: F64, twist_as_given: F64,
-                   counters: Counter[str], yaw_rate: F64 | None = None) -> F64:
+                   counters: Counter[str], yaw_rate: F64) -> F64:
     """(n, 3) vehicle velocities: the Odometry twist where it describes the motion of the
-    positions, else what does.
+    positions, else what does; a twist speed clearly off the positions' is rescaled to them
+    (``_speed_scale``).
 
     The radial-velocity constraint of the final refinement takes the vehicle's velocity at
     its word, so a twist that is not the vehicle's body-frame velocity would turn the
@@ -386,12 +392,11 @@ def _checked_twist(t: F64, positions: F64, twist_world: F64, twist_as_given: F64
     asks. Both are told from the positions' own motion; what matches is used (the ENU
     reading as it is, else the positions' central differences) and a warning says so.
     """
-    measured = np.column_stack([_finite_difference(t, positions[:, i]) for i in range(3)])
+    measured = _position_velocities(t, positions)
     # The check differentiates over +-1 s, not the +-0.2 s the velocities use: a standalone
     # fix (metres of noise, 10 Hz) gives ~7 m/s of noise over 0.4 s and would condemn a
     # good twist, ~1.4 m/s over 2 s; a zero or mis-framed twist still misses by the speed.
-    coarse = np.column_stack([_finite_difference(t, positions[:, i], _TWIST_CHECK_SPAN_S)
-                              for i in range(2)])
+    coarse = _position_velocities(t, positions[:, :2], _TWIST_CHECK_SPAN_S)
     speed = np.hypot(coarse[:, 0], coarse[:, 1])
     moving = speed > _TWIST_CHECK_SPEED_MPS
     if int(moving.sum()) < _TWIST_CHECK_SAMPLES:
@@ -429,8 +434,7 @@ _SCALE_SAMPLES = 50
 _SCALE_MIN = 0.006
 
 
-def _speed_scale(coarse: F64, twist_world: F64, moving: np.ndarray,
-                 yaw_rate: F64 | None) -> float:
+def _speed_scale(coarse: F64, twist_world: F64, moving: np.ndarray, yaw_rate: F64) -> float:
     """Factor that brings the twist's speed to the fixes' (1.0 when they agree).
 
     Why: the final refinement's radial-velocity fit takes the vehicle's speed at its word,
@@ -442,8 +446,6 @@ def _speed_scale(coarse: F64, twist_world: F64, moving: np.ndarray,
     off by this estimate (acceleration phases, how the drive samples them), so a smaller
     correction would as likely add an error as remove one.
     """
-    if yaw_rate is None:
-        return 1.0
     speed_twist = np.hypot(twist_world[:, 0], twist_world[:, 1])
     use = moving & (np.abs(yaw_rate) < _SCALE_STRAIGHT_RPS) & (speed_twist > 0.5)
     if int(use.sum()) < _SCALE_SAMPLES:

@@ -363,9 +363,9 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
     targets = recording.targets
     if len(targets) == 0:
         return None
-    offset_ns = int(round((config.sync.time_offset + extrinsics.time_offset_s) * 1e9))
-    poses = interpolate_poses(recording.vehicle, recording.frame_stamps_ns + offset_ns,
-                              config.sync.max_pose_gap)
+    stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns,
+                                       config.sync.time_offset + extrinsics.time_offset_s)
+    poses = interpolate_poses(recording.vehicle, stamps, config.sync.max_pose_gap)
     in_sensor = extrinsics.inverse_apply(poses.positions_m)
     range_m = np.hypot(in_sensor[:, 0], in_sensor[:, 1])
     azimuth = np.arctan2(in_sensor[:, 1], in_sensor[:, 0])
