@@ -178,6 +178,10 @@ class RefineConfig:
                              'vehicle box are ignored [m]', lo=0.1, hi=20.0)
     velocity_sigma_mps: float = _p(0.15, 'radial-velocity noise assumed in the fit [m/s]',
                                    lo=1e-3, hi=10.0)
+    velocity_gate_mps: float = _p(
+        0.6, "after the first round, targets whose radial velocity differs from the vehicle's "
+        'rigid motion by more than this are ignored (widened to 4 robust sigma of those '
+        'differences where the radar is noisier; 0 = off) [m/s]', lo=0.0, hi=100.0)
     position_sigma_m: float = _p(0.5, 'target position scatter assumed in the fit [m]',
                                  lo=1e-3, hi=10.0)
     profile_harmonics: int = _p(4, 'Fourier order of the reflection profile over aspect angle',

@@ -105,6 +105,9 @@ _TRACK_MEDIAN_M = 0.5
 #: truth, those 1.0-1.5 m from the box are 2-9 % the vehicle's (they are other road users'
 #: stray returns), those within 0.5 m 76-100 %.
 _NOISE_GATE_FRACTION = 2.0 / 3.0
+#: The radial-velocity gate widens to this many robust sigma of the near targets' v_r
+#: differences (see ``_velocity_consistent``).
+_VELOCITY_GATE_SIGMAS = 4.0
 #: Width of the prior around the starting translation [m] (see ``_priors``).
 _START_SIGMA_M = 0.5
 
@@ -560,7 +563,41 @@ def _gate(est: Extrinsics, candidates: I64, track_ids: I64, track_size: I64,
         track_ok = (((n_near / size >= _TRACK_FRACTION) & (median <= limit))
                     | np.isin(uniq, accepted))
         keep[has_track] &= track_ok[inv]
+    if not first_round and cfg.velocity_gate_mps > 0 and keep.any():
+        keep[keep] = _velocity_consistent(est, candidates[keep], times.subset(keep),
+                                          recording, poses, cfg.velocity_gate_mps)
     return keep
+
+
+def _velocity_consistent(est: Extrinsics, index: I64, times: _Times, recording: Recording,
+                         poses: _Poses, gate_mps: float) -> np.ndarray:
+    """Mask of the targets whose radial velocity matches the vehicle's rigid motion.
+
+    Within the box gate two kinds of target move unlike the car's body: another road user
+    that overlaps the box for a while (a car turning across it, a truck alongside in a queue),
+    and the wheels, whose micro-Doppler spreads over 0..2x the speed. Both carry position
+    errors the soft-L1 loss only bounds: measured on the simulator, 4 % of foreign targets
+    merged into a dense-traffic track moved the radar 25 cm along the boresight (1.5 cm
+    without them), and wheel returns alone fit 0.6 m off. The body's v_r residual is
+    0.06 m/s median; 0.6 m/s (``refine.velocity_gate_mps``) cuts 10-16 % of the targets.
+    Over 108 simulated ten-minute runs the 90th percentile of the horizontal error fell
+    from 19.5 to 11.5 cm (interior) and 20.2 to 15.7 cm (mixed), skin unchanged (8.5 cm
+    median); dense traffic seed 1 from 27 to 12 cm. A radar with coarser velocities widens
+    the gate to 4 robust sigma of the differences, so it never cuts into its noise. The
+    first round, decimetres and about a degree off, is not gated.
+    """
+    sensor = recording.targets.positions_m[index]
+    pos, _, vel, rate, _ = times.poses(poses, est.time_offset_s)
+    world = est.apply(sensor)
+    rel = world - pos
+    point_velocity = vel + rate[:, None] * np.column_stack([-rel[:, 1], rel[:, 0],
+                                                            np.zeros(len(rel))])
+    los = world - est.translation_m
+    unit = los / np.maximum(np.linalg.norm(los, axis=1), 1e-9)[:, None]
+    diff = (np.einsum('ij,ij->i', point_velocity, unit)
+            - recording.targets.radial_velocity_mps[index])
+    robust_sigma = 1.4826 * float(np.median(np.abs(diff)))
+    return np.abs(diff) <= max(gate_mps, _VELOCITY_GATE_SIGMAS * robust_sigma)
 
 
 def _group_median(group: I64, values: F64, n_groups: int) -> F64:
