@@ -17,18 +17,20 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from radar_calib_ros import metrics
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.core import hypotheses, polygon, registration
+from radar_calib_ros.core import hypotheses, polygon, registration, uncertainty
 from radar_calib_ros.core import vehicle as vehicle_box
 from radar_calib_ros.core.vehicle import box_distance, world_to_vehicle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.types import (
-    F64, I64, Extrinsics, HypothesisSelection, QualityReport, Refinement, TrackedTargets)
+    F64, I64, Extrinsics, HypothesisSelection, PoseSamples, QualityReport, Refinement,
+    TrackedTargets)
 
 _LOG = logging.getLogger(__name__)
 
@@ -38,6 +40,11 @@ _FEW_PASSES = 5
 _ONE_DIRECTION_DEG = 30.0
 #: Below this inlier ratio the box or the clock is probably wrong.
 _LOW_INLIER_RATIO = 0.4
+#: A drive through the view that gave the final fit fewer targets than this was not used
+#: (the refinement's own floor for a pass).
+_USED_DRIVE_TARGETS = 20
+#: Below this share of its checked frames showing the vehicle, a drive counts as unseen.
+_SEEN_DRIVE_SHARE = 0.2
 
 
 def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
@@ -78,12 +85,20 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     advice = list(refinement.diagnostics.get('advice', [])) if refinement is not None else []
     advice += _advice(n_passes, headings, sigma, paper.inlier_ratio, refinement is None,
                       config)
+    fitted = (np.asarray(refinement.diagnostics['residuals']['target_index'], np.int64)
+              if refinement is not None and 'residuals' in refinement.diagnostics else index)
+    drives = drives_through_view(extrinsics, recording, fitted, config)
+    unused = [d for d in drives if d.n_targets < _USED_DRIVE_TARGETS]
+    if unused:
+        advice.append(_unused_drives_advice(unused, len(drives)))
     extra = {
         'sigma_source': source,
         'vehicle_targets': paper.n_targets,
         'vehicle_frames': paper.n_frames,
         'pass_headings_deg': [round(h, 1) for h in headings],
         'sigma_rotation_covers': 'yaw' if refinement is None else 'roll, pitch, yaw',
+        'drives_in_view': len(drives),
+        'drives_unused': len(unused),
     }
     if refinement is not None:
         extra['refinement_targets'] = int(refinement.n_targets)
@@ -279,6 +294,113 @@ def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
                       'box; check vehicle.length, width and rear_overhang and the clock '
                       'offset (sync.time_offset).')
     return advice
+
+
+@dataclass(frozen=True, slots=True)
+class Drive:
+    """One drive of the calibration vehicle through the radar's view (final calibration).
+
+    start_s, end_s : seconds from the recording's first vehicle pose;
+    heading_rad : mean direction of travel (ENU, counter-clockwise from east);
+    n_targets : targets of the final fit within it;
+    seen_share : share of its frames, where the vehicle moved along the line of sight, that
+        show targets with its radial velocity near its box (NaN when none could be checked).
+    """
+
+    start_s: float
+    end_s: float
+    heading_rad: float
+    n_targets: int
+    seen_share: float
+
+
+def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_index: I64,
+                        config: CalibConfig) -> list[Drive]:
+    """The drives in which the calibration puts the moving vehicle in the radar's view, each
+    with the number of the fit's targets (``fitted_index`` into ``recording.targets``) in it.
+
+    Why: a drive can be lost without any error - queued among other cars it merges with
+    them, behind a truck it is hidden - and the result then rests on fewer views than the
+    user drove. Counting the drives the way the user remembers them (moving through the
+    view, stops in view included) and naming the unused ones says which views are missing.
+    The view is the data's (as in ``vehicle_detection_ratio``): the radar's azimuth span of
+    all targets and 0.8 of their 99th-percentile range.
+    """
+    vehicle = recording.vehicle
+    targets = recording.targets
+    if len(vehicle) < 2 or len(targets) == 0:
+        return []
+    cfg = config.hypotheses
+    poses = PoseSamples(vehicle.positions_m, vehicle.yaw_rad, vehicle.velocities_mps,
+                        vehicle.yaw_rate_rps, np.ones(len(vehicle), bool))
+    local = extrinsics.inverse_apply(hypotheses.reflection_centre_world(poses, config))
+    range_m = np.hypot(local[:, 0], local[:, 1])
+    azimuth = np.arctan2(local[:, 1], local[:, 0])
+    xy = targets.positions_m[:, :2]
+    reach = 0.8 * float(np.percentile(np.hypot(xy[:, 0], xy[:, 1]), 99))
+    az_lo, az_hi = np.percentile(np.arctan2(xy[:, 1], xy[:, 0]), [1, 99])
+    margin = np.radians(3.0)
+    speed = np.hypot(vehicle.velocities_mps[:, 0], vehicle.velocities_mps[:, 1])
+    in_view = ((range_m <= reach) & (azimuth > az_lo + margin) & (azimuth < az_hi - margin)
+               & (speed >= _DRIVE_MIN_SPEED_MPS))
+    edges = np.diff(np.concatenate([[0], in_view.astype(np.int8), [0]]))
+    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(
+        *np.diff(vehicle.positions_m[:, :2], axis=0).T))])
+    long_enough = travelled[last] - travelled[first] >= cfg.min_track_length_m
+    stretches = np.column_stack([vehicle.stamps_ns[first[long_enough]],
+                                 vehicle.stamps_ns[last[long_enough]]])
+    away = hypotheses.away_stamps_ns(vehicle, extrinsics.translation_m[:2],
+                                     reach + cfg.pass_margin_m)
+    passes = hypotheses.merge_intervals_ns(stretches, cfg.pass_gap_s, away)
+    if passes.shape[0] == 0:
+        return []
+    offset_s = config.sync.time_offset + extrinsics.time_offset_s
+    fitted = np.sort(hypotheses.pose_stamps_ns(recording.target_stamps_ns[fitted_index],
+                                               offset_s))
+    n_fitted = (np.searchsorted(fitted, passes[:, 1], side='right')
+                - np.searchsorted(fitted, passes[:, 0], side='left'))
+    seen_share = np.full(passes.shape[0], np.nan)
+    view = _vehicle_in_view(extrinsics, recording, config)
+    if view is not None:
+        checked, frames, near, measured_vr, predicted_vr = view
+        seen = np.zeros(recording.frame_stamps_ns.size, bool)
+        seen[frames[near & (np.abs(measured_vr - predicted_vr) < _CHECK_VR_TOLERANCE_MPS)]] = True
+        frame_stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns, offset_s)
+        in_pass = ((frame_stamps[None, :] >= passes[:, :1])
+                   & (frame_stamps[None, :] <= passes[:, 1:]) & checked[None, :])
+        n_checked = in_pass.sum(axis=1)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            seen_share = np.where(n_checked > 0, (in_pass & seen[None, :]).sum(axis=1)
+                                  / n_checked, np.nan)
+    t0 = int(vehicle.stamps_ns[0])
+    drives = []
+    for (start, end), n, share in zip(passes, n_fitted, seen_share):
+        during = (vehicle.stamps_ns >= start) & (vehicle.stamps_ns <= end)
+        vel = vehicle.velocities_mps[during]
+        drives.append(Drive((start - t0) * 1e-9, (end - t0) * 1e-9,
+                            math.atan2(float(vel[:, 1].sum()), float(vel[:, 0].sum())),
+                            int(n), float(share)))
+    return drives
+
+
+def _unused_drives_advice(unused: list[Drive], n_drives: int) -> str:
+    parts = []
+    for d in unused:
+        why = ('the radar showed no target moving with it there: hidden behind other traffic '
+               'or outside the vertical view' if not d.seen_share >= _SEEN_DRIVE_SHARE
+               else 'its targets could not be told apart from other road users')
+        parts.append(f'{d.start_s:.0f}-{d.end_s:.0f} s, '
+                     f'{uncertainty.compass_name(d.heading_rad)}bound ({why})')
+    return (f'{len(unused)} of the {n_drives} drives through the view gave the calibration '
+            f'no targets: {"; ".join(parts)}. The result rests on the other '
+            f'{n_drives - len(unused)}; if those views are needed, drive them again with the '
+            'vehicle clear of other traffic.')
+
+
+#: A drive through the view counts from this speed on [m/s] (a queue crawling in view is
+#: still one drive; stops in view are merged by ``hypotheses.merge_intervals_ns``).
+_DRIVE_MIN_SPEED_MPS = 1.0
 
 
 #: Frames count for the acceptance check only where the vehicle's reference point moves

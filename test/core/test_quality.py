@@ -144,3 +144,37 @@ def test_radial_velocity_sign_is_judged_on_the_vehicle() -> None:
     sign, same_f, flipped_f = radial_velocity_sign(truth, with_vr(-1.0), scene.config)
     assert sign == -1.0 and (same_f, flipped_f) == (flipped, same)
     assert radial_velocity_sign(truth, with_vr(0.0), scene.config)[0] == 1.0
+
+
+def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None:
+    scene = make_scene(n_passes=5)
+    rec = scene.recording
+    fitted = scene.tracked.target_index[np.isin(scene.tracked.track_id,
+                                                scene.vehicle_track_ids)]
+    drives = quality.drives_through_view(scene.truth, rec, fitted, scene.config)
+    assert len(drives) == 5
+    assert all(d.n_targets >= 20 for d in drives)
+    # the fit lost the third pass (queued among other cars, say)
+    t_s = (rec.target_stamps_ns[fitted] - rec.vehicle.stamps_ns[0]) * 1e-9
+    lost_from, lost_to = scene.windows_s[2]
+    kept = fitted[(t_s < lost_from) | (t_s > lost_to)]
+    drives = quality.drives_through_view(scene.truth, rec, kept, scene.config)
+    unused = [d for d in drives if d.n_targets < 20]
+    assert len(drives) == 5 and len(unused) == 1
+    assert lost_from - 1.0 <= unused[0].start_s <= unused[0].end_s <= lost_to + 1.0
+    # the scene's radar reports 5 m/s for everything: nothing moved with the vehicle there
+    advice = quality._unused_drives_advice(unused, len(drives))
+    assert advice.startswith('1 of the 5 drives through the view')
+    assert 'no target moving with it' in advice and 'rests on the other 4' in advice
+    # with the radial velocities its motion predicts, the drive was seen but not used
+    view = quality._vehicle_in_view(scene.truth, rec, scene.config)
+    assert view is not None
+    checked, frames, near, _, predicted = view
+    candidates = np.flatnonzero(checked[rec.targets.frame_index])
+    v_r = rec.targets.radial_velocity_mps.copy()
+    v_r[candidates] = predicted
+    moving = replace(rec, targets=replace(rec.targets, radial_velocity_mps=v_r))
+    unused = [d for d in quality.drives_through_view(scene.truth, moving, kept, scene.config)
+              if d.n_targets < 20]
+    assert len(unused) == 1 and unused[0].seen_share > 0.5
+    assert 'could not be told apart' in quality._unused_drives_advice(unused, 5)
