@@ -385,15 +385,22 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
 
 
 def _unused_drives_advice(unused: list[Drive], n_drives: int) -> str:
-    parts = []
-    for d in unused:
-        why = ('the radar showed no target moving with it there: hidden behind other traffic '
-               'or outside the vertical view' if not d.seen_share >= _SEEN_DRIVE_SHARE
-               else 'its targets could not be told apart from other road users')
-        parts.append(f'{d.start_s:.0f}-{d.end_s:.0f} s, '
-                     f'{uncertainty.compass_name(d.heading_rad)}bound ({why})')
+    def when(drives: list[Drive]) -> str:
+        return ', '.join(f'{d.start_s:.0f}-{d.end_s:.0f} s '
+                         f'{uncertainty.compass_name(d.heading_rad)}bound' for d in drives)
+    unseen = [d for d in unused if not d.seen_share >= _SEEN_DRIVE_SHARE]
+    mixed = [d for d in unused if d.seen_share >= _SEEN_DRIVE_SHARE]
+    reasons = []
+    if unseen:
+        reasons.append('the radar showed no target moving with the vehicle (hidden behind other '
+                       f'traffic, or outside the vertical view) at {when(unseen)}')
+        if mixed:
+            reasons[-1] += ';'
+    if mixed:
+        reasons.append('its targets could not be told apart from other road users (queued or '
+                       f'alongside) at {when(mixed)}')
     return (f'{len(unused)} of the {n_drives} drives through the view gave the calibration '
-            f'no targets: {"; ".join(parts)}. The result rests on the other '
+            f'no targets: {" ".join(reasons)}. The result rests on the other '
             f'{n_drives - len(unused)}; if those views are needed, drive them again with the '
             'vehicle clear of other traffic.')
 

@@ -165,7 +165,7 @@ def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None
     # the scene's radar reports 5 m/s for everything: nothing moved with the vehicle there
     advice = quality._unused_drives_advice(unused, len(drives))
     assert advice.startswith('1 of the 5 drives through the view')
-    assert 'no target moving with it' in advice and 'rests on the other 4' in advice
+    assert 'no target moving with the vehicle' in advice and 'rests on the other 4' in advice
     # with the radial velocities its motion predicts, the drive was seen but not used
     view = quality._vehicle_in_view(scene.truth, rec, scene.config)
     assert view is not None
