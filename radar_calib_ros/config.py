@@ -206,6 +206,10 @@ class RefineConfig:
     model_sigma_tilt_deg: float = _p(
         0.1, 'systematic 1-sigma of the reflection model in roll and pitch (rotation about the '
         'horizontal world axes), added to the reported uncertainty [deg]', lo=0.0, hi=10.0)
+    model_sigma_height_difference_m: float = _p(
+        0.1, "systematic 1-sigma of the difference between the vehicle's reflection heights "
+        'seen from the front and from the rear; its effect on the fit (mostly roll and pitch) '
+        'is added to the reported uncertainty [m]', lo=0.0, hi=5.0)
     model_sigma_along_m: float = _p(
         0.02, 'systematic 1-sigma of the reflection model along the boresight, added to the '
         'reported uncertainty [m]', lo=0.0, hi=5.0)

@@ -500,3 +500,52 @@ def test_velocity_gate_widens_for_a_radar_with_noisy_velocities() -> None:
     assert kept.mean() > 0.99
     exact = refine._velocity_consistent(scene.truth, index, times, rec, poses, 0.6)
     assert exact.mean() > 0.99
+
+
+def _height_config(config: CalibConfig, sigma_m: float) -> CalibConfig:
+    return dataclasses.replace(config, refine=dataclasses.replace(
+        config.refine, model_sigma_height_difference_m=sigma_m))
+
+
+def test_a_front_rear_height_difference_enters_the_reported_tilt() -> None:
+    """One reflection height for every aspect: a car that reflects higher at the front
+    than at the rear tilts a fit that sees it only head-on and tail-on. The consider term
+    predicts the direction of that tilt and widens the rotation sigma there, and hardly
+    where diverse views pin the tilt."""
+    widened = {}
+    for geometry in ('head_on', 'diverse'):
+        scene = make_scene(5, model='interior', geometry=geometry)
+        sigma = {}
+        for s in (0.0, 0.1):
+            ref = refine.refine_extrinsics(scene.initial, scene.recording, scene.tracked,
+                                           scene.selection, _height_config(scene.config, s))
+            sigma[s] = math.degrees(math.sqrt(np.trace(ref.covariance[:3, :3])))
+        widened[geometry] = sigma[0.1] - sigma[0.0]
+    assert widened['head_on'] > 0.08 and widened['diverse'] < 0.03
+    # the direction: raise the front views' targets and lower the rear views' by 5 cm
+    scene = make_scene(5, model='interior', geometry='head_on')
+    rec, idx = scene.recording, scene.vehicle_target_index
+    t0 = int(rec.vehicle.stamps_ns[0])
+    poses = refine._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
+    pos, yaw, _, _, _ = refine._Times.of(rec, idx, 0.0, t0).poses(
+        poses, scene.truth.time_offset_s)
+    aspect = reflection.aspect_angles(pos - scene.truth.translation_m, yaw)
+    world = scene.truth.apply(rec.targets.positions_m[idx])
+    world[:, 2] += 0.05 * np.cos(aspect)
+    moved = rec.targets.positions_m.copy()
+    moved[idx] = scene.truth.inverse_apply(world)
+    higher_front = dataclasses.replace(rec, targets=dataclasses.replace(rec.targets,
+                                                                        positions_m=moved))
+    shifts = []
+    real = refine._height_difference_shift
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(refine, '_height_difference_shift',
+                   lambda *a: shifts.append(real(*a)) or shifts[-1])
+        before = _run(scene)
+    after = refine.refine_extrinsics(scene.initial, higher_front, scene.tracked,
+                                     scene.selection, scene.config)
+    actual = Rotation.from_matrix(after.extrinsics.rotation
+                                  @ before.extrinsics.rotation.T).as_rotvec()
+    predicted = -shifts[-1][:3]
+    assert np.linalg.norm(actual) > math.radians(0.1)
+    assert actual @ predicted / (np.linalg.norm(actual) * np.linalg.norm(predicted)) > 0.9
