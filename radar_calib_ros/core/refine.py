@@ -563,10 +563,46 @@ def _gate(est: Extrinsics, candidates: I64, track_ids: I64, track_size: I64,
         track_ok = (((n_near / size >= _TRACK_FRACTION) & (median <= limit))
                     | np.isin(uniq, accepted))
         keep[has_track] &= track_ok[inv]
+    keep &= _box_inside_view(pos, yaw, est, recording, config)
     if not first_round and cfg.velocity_gate_mps > 0 and keep.any():
         keep[keep] = _velocity_consistent(est, candidates[keep], times.subset(keep),
                                           recording, poses, cfg.velocity_gate_mps)
     return keep
+
+
+def _box_inside_view(pos: F64, yaw: F64, est: Extrinsics, recording: Recording,
+                     config: CalibConfig) -> np.ndarray:
+    """(n,) True where every corner of the vehicle's footprint lies inside the radar's view
+    in range and azimuth (from the data: the 99th percentile of the targets' range, the
+    1st and 99th of their azimuth).
+
+    A car that the edge of the view cuts shows only its inner part: the mean of its
+    reflections shifts towards the inside, by up to half a car, which no profile over the
+    aspect can follow. Measured on a probe's recording with reflections spread uniformly
+    over the footprint and a hard 70 m / +-50 deg view: 15 cm along the boresight with such
+    frames, 1 cm without them (its other variants: 8 of them 106 -> 87 cm summed, one face
+    model 12 -> 15 cm). Over 108 simulated ten-minute runs the horizontal median went from
+    8.5 to 6.0 cm (skin), 6.3 to 6.2 (interior) and 6.0 to 6.1 (mixed).
+    """
+    targets = recording.targets.positions_m
+    step = max(1, len(targets) // 200000)
+    sample = targets[::step]
+    max_range = float(np.percentile(np.linalg.norm(sample, axis=1), 99.0))
+    az_lo, az_hi = np.percentile(np.arctan2(sample[:, 1], sample[:, 0]), [1.0, 99.0])
+    x0, x1, y0, y1 = box_limits(config.vehicle)
+    c, s = np.cos(yaw), np.sin(yaw)
+    ok = np.ones(pos.shape[0], bool)
+    for cx in (x0, x1):
+        for cy in (y0, y1):
+            corner = pos.copy()
+            corner[:, 0] += cx * c - cy * s
+            corner[:, 1] += cx * s + cy * c
+            corner[:, 2] -= config.vehicle.ref_height
+            local = est.inverse_apply(corner)
+            azimuth = np.arctan2(local[:, 1], local[:, 0])
+            ok &= ((np.linalg.norm(local, axis=1) < max_range) & (azimuth > az_lo)
+                   & (azimuth < az_hi))
+    return ok
 
 
 def _velocity_consistent(est: Extrinsics, index: I64, times: _Times, recording: Recording,

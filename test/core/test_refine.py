@@ -17,7 +17,7 @@ from refine_scene import errors, make_scene
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import refine, reflection, uncertainty
 from radar_calib_ros.errors import InsufficientDataError
-from radar_calib_ros.types import Targets, TrackedTargets
+from radar_calib_ros.types import Extrinsics, Targets, TrackedTargets
 
 # A profile (order 4) with every kind of term (depth mode, front/rear asymmetry);
 # c0 = 0.0 matches the default height prior (0.35 m above the road, ref_height 0.35 m).
@@ -549,3 +549,26 @@ def test_a_front_rear_height_difference_enters_the_reported_tilt() -> None:
     predicted = -shifts[-1][:3]
     assert np.linalg.norm(actual) > math.radians(0.1)
     assert actual @ predicted / (np.linalg.norm(actual) * np.linalg.norm(predicted)) > 0.9
+
+
+def test_frames_with_the_vehicle_cut_by_the_edge_of_the_view_are_left_out() -> None:
+    """The view comes from the data (99th percentile of range, 1st-99th of azimuth); a
+    vehicle whose footprint crosses its edge shows only its inner part and is left out."""
+    from types import SimpleNamespace
+    rng = np.random.default_rng(0)
+    n = 50000
+    r = rng.uniform(5.0, 50.0, n)
+    az = rng.uniform(-np.radians(45.0), np.radians(45.0), n)
+    targets = Targets(np.column_stack([r * np.cos(az), r * np.sin(az), np.full(n, -5.0)]),
+                      np.zeros(n), np.zeros(n, np.int64))
+    recording = SimpleNamespace(targets=targets)
+    radar = Extrinsics(np.eye(3), np.zeros(3), 0.0)
+    config = CalibConfig()
+    a = np.radians(43.0)
+    pos = np.array([[20.0, 0.0, -4.7],                          # well inside
+                    [47.0, 0.0, -4.7],                          # the front beyond the range
+                    [25.0 * np.cos(a), 25.0 * np.sin(a), -4.7],  # across the azimuth edge
+                    [30.0, -10.0, -4.7]])                       # inside, turned
+    yaw = np.array([0.0, 0.0, 0.0, np.radians(60.0)])
+    inside = refine._box_inside_view(pos, yaw, radar, recording, config)
+    assert inside.tolist() == [True, False, False, True]
