@@ -105,6 +105,9 @@ _TRACK_MEDIAN_M = 0.5
 #: truth, those 1.0-1.5 m from the box are 2-9 % the vehicle's (they are other road users'
 #: stray returns), those within 0.5 m 76-100 %.
 _NOISE_GATE_FRACTION = 2.0 / 3.0
+#: Frames with the vehicle cut by the edge of the view are left out only while at least
+#: this share of the gated targets remains (see ``_box_inside_view``).
+_MIN_INSIDE_VIEW_SHARE = 0.5
 #: The radial-velocity gate widens to this many robust sigma of the near targets' v_r
 #: differences (see ``_velocity_consistent``).
 _VELOCITY_GATE_SIGMAS = 4.0
@@ -563,7 +566,11 @@ def _gate(est: Extrinsics, candidates: I64, track_ids: I64, track_size: I64,
         track_ok = (((n_near / size >= _TRACK_FRACTION) & (median <= limit))
                     | np.isin(uniq, accepted))
         keep[has_track] &= track_ok[inv]
-    keep &= _box_inside_view(pos, yaw, est, recording, config)
+    inside = keep & _box_inside_view(pos, yaw, est, recording, config)
+    # A narrow view (a long-range radar's +-9 deg) may rarely hold the whole car: then the
+    # cut views are all there is, and losing most of the data would cost more than the cut.
+    if inside.sum() >= max(_MIN_TARGETS, _MIN_INSIDE_VIEW_SHARE * keep.sum()):
+        keep = inside
     if not first_round and cfg.velocity_gate_mps > 0 and keep.any():
         keep[keep] = _velocity_consistent(est, candidates[keep], times.subset(keep),
                                           recording, poses, cfg.velocity_gate_mps)

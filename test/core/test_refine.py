@@ -572,3 +572,16 @@ def test_frames_with_the_vehicle_cut_by_the_edge_of_the_view_are_left_out() -> N
     yaw = np.array([0.0, 0.0, 0.0, np.radians(60.0)])
     inside = refine._box_inside_view(pos, yaw, radar, recording, config)
     assert inside.tolist() == [True, False, False, True]
+
+
+def test_a_view_too_narrow_for_the_whole_car_keeps_the_cut_views(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the car never fits in the view (a long-range radar's narrow beam), the cut
+    views are all there is: they are used rather than none (which would exit 1)."""
+    scene = make_scene(11, model='interior', geometry='diverse')
+    full = _run(scene)
+    monkeypatch.setattr(refine, '_box_inside_view',
+                        lambda pos, *args: np.zeros(pos.shape[0], bool))
+    narrow = _run(scene)
+    assert narrow.n_targets == full.n_targets
+    assert errors(narrow.extrinsics, scene.truth)['horizontal'] < 0.1
