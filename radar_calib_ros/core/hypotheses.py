@@ -482,6 +482,24 @@ def _follows_vehicle(in_view: int, followed: int) -> bool:
     return followed >= 1 and followed >= _MIN_FOLLOWED_SHARE * in_view
 
 
+def passes_in_view_ns(vehicle: VehicleTrack, in_view: np.ndarray, sensor_xy_m: F64,
+                      reach_m: float, config: CalibConfig) -> I64:
+    """(p, 2) passes of the vehicle through a view: the runs of pose samples ``in_view``
+    that travel at least ``hypotheses.min_track_length_m``, merged as in
+    :func:`count_passes` (the vehicle never farther than ``reach_m`` plus
+    ``hypotheses.pass_margin_m`` from the sensor in between makes one pass)."""
+    cfg = config.hypotheses
+    edges = np.diff(np.concatenate([[0], in_view.astype(np.int8), [0]]))
+    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(
+        *np.diff(vehicle.positions_m[:, :2], axis=0).T))])
+    long_enough = travelled[last] - travelled[first] >= cfg.min_track_length_m
+    stretches = np.column_stack([vehicle.stamps_ns[first[long_enough]],
+                                 vehicle.stamps_ns[last[long_enough]]])
+    away = away_stamps_ns(vehicle, sensor_xy_m, reach_m + cfg.pass_margin_m)
+    return merge_intervals_ns(stretches, cfg.pass_gap_s, away)
+
+
 def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidFit,
                         tracks: Sequence[SmoothedTrack], recording: Recording,
                         config: CalibConfig) -> tuple[int, int]:
@@ -507,7 +525,6 @@ def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidF
     recording : Recording
     config : CalibConfig
     """
-    cfg = config.hypotheses
     vehicle = recording.vehicle
     if not group or len(vehicle) < 2:
         return 0, 0
@@ -523,15 +540,7 @@ def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidF
     speed = np.hypot(vehicle.velocities_mps[:, 0], vehicle.velocities_mps[:, 1])
     in_view = ((np.hypot(local[:, 0], local[:, 1]) <= reach) & (speed >= _TRACKABLE_SPEED_MPS)
                & (azimuth >= seen_azimuth.min()) & (azimuth <= seen_azimuth.max()))
-    edges = np.diff(np.concatenate([[0], in_view.astype(np.int8), [0]]))
-    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
-    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(
-        *np.diff(vehicle.positions_m[:, :2], axis=0).T))])
-    long_enough = travelled[last] - travelled[first] >= cfg.min_track_length_m
-    stretches = np.column_stack([vehicle.stamps_ns[first[long_enough]],
-                                 vehicle.stamps_ns[last[long_enough]]])
-    away = away_stamps_ns(vehicle, fit.translation_m[:2], reach + cfg.pass_margin_m)
-    passes = merge_intervals_ns(stretches, cfg.pass_gap_s, away)
+    passes = passes_in_view_ns(vehicle, in_view, fit.translation_m[:2], reach, config)
     spans = np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in group], np.int64)
     # radar stamps onto the pose clock, as the correspondences were made
     spans = pose_stamps_ns(spans, config.sync.time_offset)

@@ -327,32 +327,21 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     all targets and 0.8 of their 99th-percentile range.
     """
     vehicle = recording.vehicle
-    targets = recording.targets
-    if len(vehicle) < 2 or len(targets) == 0:
+    if len(vehicle) < 2 or len(recording.targets) == 0:
         return []
-    cfg = config.hypotheses
     poses = PoseSamples(vehicle.positions_m, vehicle.yaw_rad, vehicle.velocities_mps,
                         vehicle.yaw_rate_rps, np.ones(len(vehicle), bool))
     local = extrinsics.inverse_apply(hypotheses.reflection_centre_world(poses, config))
     range_m = np.hypot(local[:, 0], local[:, 1])
     azimuth = np.arctan2(local[:, 1], local[:, 0])
-    xy = targets.positions_m[:, :2]
-    reach = 0.8 * float(np.percentile(np.hypot(xy[:, 0], xy[:, 1]), 99))
-    az_lo, az_hi = np.percentile(np.arctan2(xy[:, 1], xy[:, 0]), [1, 99])
+    radar_view = _radar_view(recording)
+    reach = 0.8 * radar_view[0]
     margin = np.radians(3.0)
     speed = np.hypot(vehicle.velocities_mps[:, 0], vehicle.velocities_mps[:, 1])
-    in_view = ((range_m <= reach) & (azimuth > az_lo + margin) & (azimuth < az_hi - margin)
-               & (speed >= _DRIVE_MIN_SPEED_MPS))
-    edges = np.diff(np.concatenate([[0], in_view.astype(np.int8), [0]]))
-    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
-    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(
-        *np.diff(vehicle.positions_m[:, :2], axis=0).T))])
-    long_enough = travelled[last] - travelled[first] >= cfg.min_track_length_m
-    stretches = np.column_stack([vehicle.stamps_ns[first[long_enough]],
-                                 vehicle.stamps_ns[last[long_enough]]])
-    away = hypotheses.away_stamps_ns(vehicle, extrinsics.translation_m[:2],
-                                     reach + cfg.pass_margin_m)
-    passes = hypotheses.merge_intervals_ns(stretches, cfg.pass_gap_s, away)
+    in_view = ((range_m <= reach) & (azimuth > radar_view[1] + margin)
+               & (azimuth < radar_view[2] - margin) & (speed >= _DRIVE_MIN_SPEED_MPS))
+    passes = hypotheses.passes_in_view_ns(vehicle, in_view, extrinsics.translation_m[:2],
+                                          reach, config)
     if passes.shape[0] == 0:
         return []
     offset_s = config.sync.time_offset + extrinsics.time_offset_s
@@ -361,11 +350,10 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     n_fitted = (np.searchsorted(fitted, passes[:, 1], side='right')
                 - np.searchsorted(fitted, passes[:, 0], side='left'))
     seen_share = np.full(passes.shape[0], np.nan)
-    view = _vehicle_in_view(extrinsics, recording, config)
+    view = _vehicle_in_view(extrinsics, recording, config, radar_view)
     if view is not None:
-        checked, frames, near, measured_vr, predicted_vr = view
-        seen = np.zeros(recording.frame_stamps_ns.size, bool)
-        seen[frames[near & (np.abs(measured_vr - predicted_vr) < _CHECK_VR_TOLERANCE_MPS)]] = True
+        checked = view[0]
+        seen = _frames_seen(view, recording.frame_stamps_ns.size)
         frame_stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns, offset_s)
         in_pass = ((frame_stamps[None, :] >= passes[:, :1])
                    & (frame_stamps[None, :] <= passes[:, 1:]) & checked[None, :])
@@ -443,11 +431,19 @@ def vehicle_detection_ratio(extrinsics: Extrinsics, recording: Recording,
     view = _vehicle_in_view(extrinsics, recording, config)
     if view is None:
         return float('nan'), 0
-    checked, frames, near, measured_vr, predicted_vr = view
-    matching = near & (np.abs(measured_vr - predicted_vr) < _CHECK_VR_TOLERANCE_MPS)
-    seen = np.zeros(recording.frame_stamps_ns.size, bool)
-    seen[frames[matching]] = True
+    checked = view[0]
+    seen = _frames_seen(view, recording.frame_stamps_ns.size)
     return float(seen[checked].mean()), int(checked.sum())
+
+
+def _frames_seen(view: tuple[np.ndarray, I64, np.ndarray, F64, F64], n_frames: int
+                 ) -> np.ndarray:
+    """(n_frames,) True for the frames of ``_vehicle_in_view``'s targets that show the
+    vehicle: a target near its box with its predicted radial velocity."""
+    _, frames, near, measured_vr, predicted_vr = view
+    seen = np.zeros(n_frames, bool)
+    seen[frames[near & (np.abs(measured_vr - predicted_vr) < _CHECK_VR_TOLERANCE_MPS)]] = True
+    return seen
 
 
 #: Fewest targets near the box that must match one sign before the sign is judged, and how
@@ -484,11 +480,22 @@ def radial_velocity_sign(extrinsics: Extrinsics, recording: Recording,
     return sign, same, flipped
 
 
-def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: CalibConfig
+def _radar_view(recording: Recording) -> tuple[float, float, float]:
+    """The radar's view from the data: the 99th percentile of all targets' horizontal range
+    and the 1st and 99th of their azimuth [m, rad, rad] (the contract has no field-of-view
+    parameter)."""
+    xy = recording.targets.positions_m[:, :2]
+    az_lo, az_hi = np.percentile(np.arctan2(xy[:, 1], xy[:, 0]), [1, 99])
+    return float(np.percentile(np.hypot(xy[:, 0], xy[:, 1]), 99)), float(az_lo), float(az_hi)
+
+
+def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
+                     radar_view: tuple[float, float, float] | None = None
                      ) -> tuple[np.ndarray, I64, np.ndarray, F64, F64] | None:
     """Frames where the calibration puts the moving vehicle in the radar's view, and their
     targets: (checked frames mask, each target's frame, near the box, measured and
-    predicted radial velocity); None when no frame qualifies."""
+    predicted radial velocity); None when no frame qualifies. ``radar_view`` is
+    :func:`_radar_view`'s, computed here when not given."""
     targets = recording.targets
     if len(targets) == 0:
         return None
@@ -498,9 +505,7 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
     in_sensor = extrinsics.inverse_apply(poses.positions_m)
     range_m = np.hypot(in_sensor[:, 0], in_sensor[:, 1])
     azimuth = np.arctan2(in_sensor[:, 1], in_sensor[:, 0])
-    xy = targets.positions_m[:, :2]
-    max_range = float(np.percentile(np.hypot(xy[:, 0], xy[:, 1]), 99))
-    az_lo, az_hi = np.percentile(np.arctan2(xy[:, 1], xy[:, 0]), [1, 99])
+    max_range, az_lo, az_hi = radar_view if radar_view is not None else _radar_view(recording)
     line_of_sight = poses.positions_m - extrinsics.translation_m
     line_of_sight /= np.maximum(np.linalg.norm(line_of_sight, axis=1), 1e-9)[:, None]
     radial_speed = np.abs(np.sum(poses.velocities_mps * line_of_sight, axis=1))

@@ -532,7 +532,8 @@ def _corridor(est: Extrinsics, candidates: I64, times: _Times, recording: Record
 
 def _gate(est: Extrinsics, candidates: I64, track_ids: I64, track_size: I64,
           accepted: np.ndarray, times: _Times, recording: Recording, poses: _Poses,
-          config: CalibConfig, first_round: bool) -> np.ndarray:
+          config: CalibConfig, first_round: bool,
+          view: tuple[float, float, float]) -> np.ndarray:
     """Mask over ``candidates`` of the targets the estimate puts on or near the vehicle.
 
     The first round starts from the paper's estimate, decimetres off: it gates at
@@ -566,7 +567,7 @@ def _gate(est: Extrinsics, candidates: I64, track_ids: I64, track_size: I64,
         track_ok = (((n_near / size >= _TRACK_FRACTION) & (median <= limit))
                     | np.isin(uniq, accepted))
         keep[has_track] &= track_ok[inv]
-    inside = keep & _box_inside_view(pos, yaw, est, recording, config)
+    inside = keep & _box_inside_view(pos, yaw, est, view, config)
     # A narrow view (a long-range radar's +-9 deg) may rarely hold the whole car: then the
     # cut views are all there is, and losing most of the data would cost more than the cut.
     if inside.sum() >= max(_MIN_TARGETS, _MIN_INSIDE_VIEW_SHARE * keep.sum()):
@@ -577,11 +578,10 @@ def _gate(est: Extrinsics, candidates: I64, track_ids: I64, track_size: I64,
     return keep
 
 
-def _box_inside_view(pos: F64, yaw: F64, est: Extrinsics, recording: Recording,
+def _box_inside_view(pos: F64, yaw: F64, est: Extrinsics, view: tuple[float, float, float],
                      config: CalibConfig) -> np.ndarray:
     """(n,) True where every corner of the vehicle's footprint lies inside the radar's view
-    in range and azimuth (from the data: the 99th percentile of the targets' range, the
-    1st and 99th of their azimuth).
+    in range and azimuth (``view`` from :func:`_range_azimuth_view`).
 
     A car that the edge of the view cuts shows only its inner part: the mean of its
     reflections shifts towards the inside, by up to half a car, which no profile over the
@@ -591,11 +591,7 @@ def _box_inside_view(pos: F64, yaw: F64, est: Extrinsics, recording: Recording,
     model 12 -> 15 cm). Over 108 simulated ten-minute runs the horizontal median went from
     8.5 to 6.0 cm (skin), 6.3 to 6.2 (interior) and 6.0 to 6.1 (mixed).
     """
-    targets = recording.targets.positions_m
-    step = max(1, len(targets) // 200000)
-    sample = targets[::step]
-    max_range = float(np.percentile(np.linalg.norm(sample, axis=1), 99.0))
-    az_lo, az_hi = np.percentile(np.arctan2(sample[:, 1], sample[:, 0]), [1.0, 99.0])
+    max_range, az_lo, az_hi = view
     x0, x1, y0, y1 = box_limits(config.vehicle)
     c, s = np.cos(yaw), np.sin(yaw)
     ok = np.ones(pos.shape[0], bool)
@@ -846,6 +842,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     # Track sizes are counted before, so the track rule of the gate keeps its meaning.
     track_size = _track_sizes(track_ids)
     fov = _elevation_view(recording)
+    view = _range_azimuth_view(recording)
 
     def linearised_at(data: _Selected, est: Extrinsics, profile: F64) -> tuple[_Model, F64]:
         """The model linearised at ``est`` and the parameter vector of that point (each
@@ -880,7 +877,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     rounds = 0
     for rounds in range(1, cfg.max_iterations + 1):
         keep = _gate(est, candidates, track_ids, track_size, accepted, times, recording, poses,
-                     config, first_round=rounds == 1)
+                     config, first_round=rounds == 1, view=view)
         keep[keep] = _in_passes(times.subset(keep).t_s, config.hypotheses.pass_gap_s)
         index = candidates[keep]
         if index.size < _MIN_TARGETS:
@@ -1057,10 +1054,25 @@ def _debiased_positions(sensor: F64, config: CalibConfig) -> F64:
     return sensor * scale
 
 
+def _view_sample(recording: Recording) -> F64:
+    """Up to about 200 000 of the targets' sensor-frame positions, evenly strided: enough
+    for the percentiles that outline the radar's view."""
+    sample: F64 = recording.targets.positions_m[::max(1, len(recording.targets) // 200000)]
+    return sample
+
+
+def _range_azimuth_view(recording: Recording) -> tuple[float, float, float]:
+    """The radar's view from the data: the 99th percentile of the targets' range and the
+    1st and 99th of their azimuth [m, rad, rad]."""
+    pts = _view_sample(recording)
+    az_lo, az_hi = np.percentile(np.arctan2(pts[:, 1], pts[:, 0]), [1.0, 99.0])
+    return float(np.percentile(np.linalg.norm(pts, axis=1), 99.0)), float(az_lo), float(az_hi)
+
+
 def _elevation_view(recording: Recording) -> tuple[float, float]:
     """The radar's elevation field of view, from the data: the 1st and 99th percentiles of
     the sensor-frame elevation of all targets [rad] (the edges blurred by the noise)."""
-    pts = recording.targets.positions_m[::max(1, len(recording.targets) // 200000)]
+    pts = _view_sample(recording)
     el = np.arcsin(np.clip(pts[:, 2] / np.maximum(np.linalg.norm(pts, axis=1), 1e-9), -1, 1))
     lo, hi = np.percentile(el, [1.0, 99.0]) if el.size else (-np.pi / 2, np.pi / 2)
     return float(lo), float(hi)

@@ -393,25 +393,24 @@ def test_clock_offset_can_be_fixed() -> None:
     assert errors(ref.extrinsics, scene.truth)['horizontal'] < 1e-3
 
 
-def _with_queued_neighbour(scene, gap_m: float):  # type: ignore[no-untyped-def]
-    """The scene plus a car queued ``gap_m`` ahead of the vehicle's front bumper in its
-    first pass: copies of the vehicle's targets moved forward by a car length plus the gap,
-    in the vehicle's own track (the tracker merged the two cars)."""
+def _with_first_pass_copies(scene, forward_m: float, left_m: float,  # type: ignore[no-untyped-def]
+                            dv_mps: float = 0.0):
+    """The scene plus another road user in the vehicle's first pass: copies of the vehicle's
+    targets moved ``forward_m`` ahead and ``left_m`` to its left, radial velocities
+    ``dv_mps`` off, in the vehicle's own track (the tracker merged the two)."""
     rec = scene.recording
     first = scene.vehicle_target_index[scene.pass_of_target[scene.vehicle_target_index] == 0]
-    stamps = rec.frame_stamps_ns[rec.targets.frame_index[first]]
+    assert first.size > 100
     t0 = int(rec.vehicle.stamps_ns[0])
     poses = refine._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
     times = refine._Times.of(rec, first, 0.0, t0)
     _, yaw, _, _, _ = times.poses(poses, scene.truth.time_offset_s)
     world = scene.truth.apply(rec.targets.positions_m[first])
-    shift = scene.config.vehicle.length + gap_m
-    world[:, 0] += shift * np.cos(yaw)
-    world[:, 1] += shift * np.sin(yaw)
-    assert stamps.size > 100
+    world[:, 0] += forward_m * np.cos(yaw) - left_m * np.sin(yaw)
+    world[:, 1] += forward_m * np.sin(yaw) + left_m * np.cos(yaw)
     targets = Targets(np.vstack([rec.targets.positions_m, scene.truth.inverse_apply(world)]),
                       np.concatenate([rec.targets.radial_velocity_mps,
-                                      rec.targets.radial_velocity_mps[first]]),
+                                      rec.targets.radial_velocity_mps[first] + dv_mps]),
                       np.concatenate([rec.targets.frame_index, rec.targets.frame_index[first]]))
     copies = np.arange(len(rec.targets), len(targets))
     owner = dict(zip(scene.tracked.target_index.tolist(), scene.tracked.track_id.tolist()))
@@ -420,6 +419,11 @@ def _with_queued_neighbour(scene, gap_m: float):  # type: ignore[no-untyped-def]
                                              [owner[int(i)] for i in first]]))
     return dataclasses.replace(scene, recording=dataclasses.replace(rec, targets=targets),
                                tracked=tracked), copies
+
+
+def _with_queued_neighbour(scene, gap_m: float):  # type: ignore[no-untyped-def]
+    """A car queued ``gap_m`` ahead of the vehicle's front bumper in its first pass."""
+    return _with_first_pass_copies(scene, scene.config.vehicle.length + gap_m, 0.0)
 
 
 def test_a_queued_neighbour_merged_into_the_vehicle_track_is_gated_out() -> None:
@@ -438,29 +442,9 @@ def test_a_queued_neighbour_merged_into_the_vehicle_track_is_gated_out() -> None
 
 
 def _with_overlapping_mover(scene, shift_m: float, dv_mps: float):  # type: ignore[no-untyped-def]
-    """The scene plus another road user overlapping the vehicle's box in its first pass:
-    copies of the vehicle's targets moved ``shift_m`` to its left, with radial velocities
-    ``dv_mps`` off its motion, in the vehicle's own track (the tracker merged them)."""
-    rec = scene.recording
-    first = scene.vehicle_target_index[scene.pass_of_target[scene.vehicle_target_index] == 0]
-    t0 = int(rec.vehicle.stamps_ns[0])
-    poses = refine._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
-    times = refine._Times.of(rec, first, 0.0, t0)
-    _, yaw, _, _, _ = times.poses(poses, scene.truth.time_offset_s)
-    world = scene.truth.apply(rec.targets.positions_m[first])
-    world[:, 0] -= shift_m * np.sin(yaw)
-    world[:, 1] += shift_m * np.cos(yaw)
-    targets = Targets(np.vstack([rec.targets.positions_m, scene.truth.inverse_apply(world)]),
-                      np.concatenate([rec.targets.radial_velocity_mps,
-                                      rec.targets.radial_velocity_mps[first] + dv_mps]),
-                      np.concatenate([rec.targets.frame_index, rec.targets.frame_index[first]]))
-    copies = np.arange(len(rec.targets), len(targets))
-    owner = dict(zip(scene.tracked.target_index.tolist(), scene.tracked.track_id.tolist()))
-    tracked = TrackedTargets(np.concatenate([scene.tracked.target_index, copies]),
-                             np.concatenate([scene.tracked.track_id,
-                                             [owner[int(i)] for i in first]]))
-    return dataclasses.replace(scene, recording=dataclasses.replace(rec, targets=targets),
-                               tracked=tracked), copies
+    """Another road user overlapping the vehicle's box in its first pass, ``shift_m`` to its
+    left, with radial velocities ``dv_mps`` off its motion."""
+    return _with_first_pass_copies(scene, 0.0, shift_m, dv_mps)
 
 
 def _with_velocity_gate(config: CalibConfig, gate_mps: float) -> CalibConfig:
@@ -570,7 +554,8 @@ def test_frames_with_the_vehicle_cut_by_the_edge_of_the_view_are_left_out() -> N
                     [25.0 * np.cos(a), 25.0 * np.sin(a), -4.7],  # across the azimuth edge
                     [30.0, -10.0, -4.7]])                       # inside, turned
     yaw = np.array([0.0, 0.0, 0.0, np.radians(60.0)])
-    inside = refine._box_inside_view(pos, yaw, radar, recording, config)
+    inside = refine._box_inside_view(pos, yaw, radar,
+                                     refine._range_azimuth_view(recording), config)
     assert inside.tolist() == [True, False, False, True]
 
 
