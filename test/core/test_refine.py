@@ -570,3 +570,31 @@ def test_a_view_too_narrow_for_the_whole_car_keeps_the_cut_views(
     narrow = _run(scene)
     assert narrow.n_targets == full.n_targets
     assert errors(narrow.extrinsics, scene.truth)['horizontal'] < 0.1
+
+
+def test_gate_rounds_on_every_kth_target_end_in_the_same_fit_of_all(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """An imaging radar's 100+ targets per frame make every LM step expensive: the gate
+    rounds fit every k-th target, then one fit of all. The estimate is that of fitting all
+    throughout, to well inside its own uncertainty, and the covariance is of all targets."""
+    scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
+    full = _run(scene)
+    monkeypatch.setattr(refine, '_ROUND_TARGETS', full.n_targets // 4)
+    calls: list[int] = []
+    solve = refine._solve
+
+    def counted(model, x0, max_iter=30):  # type: ignore[no-untyped-def]
+        calls.append(model.data.index.size)
+        return solve(model, x0, max_iter)
+
+    monkeypatch.setattr(refine, '_solve', counted)
+    thinned = _run(scene)
+    # rounds of about a quarter, each fit (the model check's too) ends on all targets
+    assert min(calls) < 0.4 * full.n_targets
+    assert max(calls) > 0.9 * full.n_targets
+    # (the gate may differ by a target or two: it follows the rounds' estimates)
+    assert abs(thinned.n_targets - full.n_targets) <= 0.01 * full.n_targets
+    moved = np.linalg.norm(thinned.extrinsics.translation_m - full.extrinsics.translation_m)
+    assert moved < 0.25 * full.diagnostics['sigma_horizontal_m'], moved
+    np.testing.assert_allclose(np.sqrt(np.diag(thinned.covariance)),
+                               np.sqrt(np.diag(full.covariance)), rtol=0.15)
