@@ -340,8 +340,17 @@ def test_declared_fix_sigma_joins_the_translation_covariance() -> None:
     plain, with_gnss = _run(scene), _run(declared)
     np.testing.assert_array_equal(with_gnss.extrinsics.translation_m,
                                   plain.extrinsics.translation_m)
-    np.testing.assert_allclose(with_gnss.covariance - plain.covariance,
-                               np.diag([0.0, 0.0, 0.0, 1.0, 1.0, 4.0, 0.0]), atol=1e-9)
+    added = with_gnss.covariance - plain.covariance
+    # the declared sigma joins the translation one to one ...
+    np.testing.assert_allclose(added[3:, 3:], np.diag([1.0, 1.0, 4.0, 0.0]), atol=1e-9)
+    # ... and tilts and turns the fit by about sigma over the spread of the vehicle
+    # positions (the passes span tens of metres): 2 m of height, degrees of roll and
+    # pitch; 1 m across, half as much yaw; no correlations added
+    tilt = np.degrees(np.sqrt(np.diag(added)[:3]))
+    assert 1.0 < tilt[0] < 20.0 and np.isclose(tilt[0], tilt[1]), tilt
+    assert np.isclose(tilt[2], 0.5 * tilt[0], rtol=1e-6), tilt
+    np.testing.assert_allclose(added[:3, 3:], 0.0, atol=1e-12)
+    np.testing.assert_allclose(added[:3, :3], np.diag(np.diag(added[:3, :3])), atol=1e-12)
 
 
 def test_a_2d_radar_reports_roll_pitch_and_height_as_unmeasured() -> None:
