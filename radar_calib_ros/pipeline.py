@@ -207,6 +207,22 @@ def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
                      'GNSS (NavSatFix status 0: no RTK, SBAS or GBAS); their error passes '
                      f'into the radar\'s position one to one, and {declared}. Calibrate with '
                      'an RTK fix.')
+    elif recording.counters.get('fixes_degraded_dropped', 0):
+        dropped = recording.counters['fixes_degraded_dropped']
+        stretches = recording.counters.get('fixes_unaugmented_stretches', 0)
+        longest_s = recording.counters.get('fixes_unaugmented_longest_ms', 0) / 1000.0
+        where = (f'; standalone (NavSatFix status 0) in {stretches} stretch'
+                 f'{"es" if stretches != 1 else ""}, the longest {longest_s:.0f} s'
+                 if standalone else '')
+        notes.append(f'{dropped} of the vehicle\'s {fixes} fixes ({100 * dropped / fixes:.0f} %) '
+                     'had lost the RTK solution (status 0, or a declared accuracy far below the '
+                     f'rest){where}: those poses, decimetres to metres off, were left out with '
+                     'the radar frames they would have placed. Check the correction link, or '
+                     'drive those passes again.')
+    merged = recording.counters.get('radar_messages_merged', 0)
+    if merged:
+        notes.append(f'{merged} radar messages shared their header stamp with another and were '
+                     'taken as parts of one scan (a driver that publishes a scan in pieces).')
     permille = recording.counters.get('odometry_speed_scale_permille')
     if permille:
         notes.append(f'The Odometry twist speed is {-permille / 10:.1f} % off the speed of the '

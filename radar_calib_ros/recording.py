@@ -247,13 +247,40 @@ class RecordingBuilder:
         else:
             positions, velocities = np.zeros((0, 3)), np.zeros(0)
         velocities = velocities * self._config.radar.velocity_sign
-        frame_index = np.repeat(np.arange(frame_stamps.size, dtype=np.int64), counts)
+        # Some drivers publish one scan as several messages (sectors, or chunks of a long
+        # target list) under one header stamp. They are one frame: taken apart, each
+        # shows a part of the vehicle and the vehicle seems missed in most frames (an
+        # independent recording with 5 parts per scan was refused for it).
+        frame_stamps, message_frame = np.unique(frame_stamps, return_inverse=True)
+        frame_index = np.repeat(message_frame.ravel().astype(np.int64), counts)
         targets = Targets(positions, velocities, frame_index)
         frame, vehicle = self._build_vehicle()
         counters = dict(self.counters)
+        counters.update(self._unaugmented_stretches())
+        merged = int(order.size - frame_stamps.size)
+        if merged:
+            counters['radar_messages_merged'] = merged
+            _LOG.warning('%d radar messages share their header stamp with another: each '
+                         'stamp is taken as one scan (%d scans)', merged, frame_stamps.size)
         return Recording(frame_stamps, targets, vehicle, frame,
                          radar_frame_id=self._config.radar.frame_id, counters=counters,
                          fix_sigma_m=self._fix_sigma())
+
+    def _unaugmented_stretches(self) -> dict[str, int]:
+        """Runs of consecutive standalone fixes (status 0): how many, and the longest [ms].
+        An RTK receiver that drops to a float or standalone solution for a while gives
+        such runs; their error reaches the calibration unseen by the fit."""
+        if not self._fixes:
+            return {}
+        status = np.array([f[4] for f in sorted(self._fixes)], np.int64)
+        stamps = np.array(sorted(f[0] for f in self._fixes), np.int64)
+        edges = np.diff(np.concatenate([[0], (status == 0).astype(np.int64), [0]]))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+        if starts.size == 0:
+            return {}
+        longest = int(np.max(stamps[ends] - stamps[starts])) // 1_000_000
+        return {'fixes_unaugmented_stretches': int(starts.size),
+                'fixes_unaugmented_longest_ms': longest}
 
     def _fix_sigma(self) -> tuple[float, float] | None:
         """Median declared 1-sigma of the fixes (horizontal, vertical), None if none."""
@@ -274,6 +301,10 @@ class RecordingBuilder:
             stamps = np.array(sorted(f[0] for f in self._fixes), np.int64)
             stamps, unique = np.unique(stamps, return_index=True)
             fixes = fixes[unique]
+            degraded = _degraded_fixes(fixes[:, 4], fixes[:, 5])
+            if degraded.any():
+                self.counters['fixes_degraded_dropped'] = int(degraded.sum())
+                stamps, fixes = stamps[~degraded], fixes[~degraded]
             lat, lon, alt = fixes[:, 1], fixes[:, 2], fixes[:, 3]
             frame = LocalFrame.at(lat[0], lon[0], cfg.world.epsg)
             positions = frame.geodetic_to_local(lat, lon, alt)
@@ -353,6 +384,32 @@ def interpolate_poses(vehicle: VehicleTrack, stamps_ns: I64, max_gap_s: float) -
     gap = tv[upper] - tv[upper - 1]
     valid = (tq >= tv[0]) & (tq <= tv[-1]) & (gap <= max_gap_s)
     return PoseSamples(positions, yaw, velocities, yaw_rate, valid)
+
+
+#: A fix declaring more than this many times the drive's median horizontal sigma (and
+#: more than _DEGRADED_SIGMA_M) is degraded.
+_DEGRADED_SIGMA_RATIO = 5.0
+_DEGRADED_SIGMA_M = 0.1
+
+
+def _degraded_fixes(status: F64, sigma_h: F64) -> np.ndarray:
+    """(n,) True for the fixes of a mostly-RTK drive where the receiver lost its solution:
+    status 0 (no augmentation) while at least half the fixes are augmented, or a declared
+    horizontal sigma far above the drive's median. Their decimetres to metres would pass
+    into the radar's position one to one (an independent recording with three 20 s RTK
+    dropouts: 2.4 -> 15.4 cm); left out, their radar frames have no pose and wait for the
+    passes with a good one. A drive that is mostly standalone keeps everything (and a note
+    says so): nothing better is there."""
+    augmented = status > 0
+    if augmented.mean() < 0.5:
+        return np.zeros(status.size, bool)
+    degraded = ~augmented
+    known = np.isfinite(sigma_h)
+    if known.sum() >= 2:
+        limit = max(_DEGRADED_SIGMA_M, _DEGRADED_SIGMA_RATIO * float(np.median(sigma_h[known])))
+        degraded |= known & (sigma_h > limit)
+    # at least two fixes must stay
+    return degraded if (~degraded).sum() >= 2 else np.zeros(status.size, bool)
 
 
 def _interp_angle(tq: F64, t: F64, angle: F64) -> F64:

@@ -174,8 +174,11 @@ def test_invalid_fixes_and_odometry_dropped_and_counted() -> None:
     assert rec.counters['fixes'] == 9 and rec.counters['fixes_no_fix'] == 2
     assert rec.counters['fixes_invalid'] == 3
     assert rec.counters['odometry'] == 4 and rec.counters['odometry_invalid'] == 2
-    np.testing.assert_array_equal(rec.vehicle.stamps_ns, T0 + np.array([0, 2, 3, 4]) * 10**8)
-    np.testing.assert_allclose(rec.vehicle.positions_m[:, 0], [0, 2, 3, 4], atol=1e-6)
+    # the standalone fix (status 0) amid RTK ones is kept as received but left out of the
+    # vehicle track (test_rtk_lost_for_stretches_is_named_with_their_count_and_length)
+    assert rec.counters['fixes_degraded_dropped'] == 1
+    np.testing.assert_array_equal(rec.vehicle.stamps_ns, T0 + np.array([0, 3, 4]) * 10**8)
+    np.testing.assert_allclose(rec.vehicle.positions_m[:, 0], [0, 3, 4], atol=1e-6)
 
 
 def test_radar_frames_sorted_counted_and_signed() -> None:
@@ -322,6 +325,90 @@ def test_fix_status_and_covariance_are_kept_and_summarised() -> None:
     assert fixes[0].position_sigma_m == pytest.approx((1.5, 2.5))
     notes = [n for n in _data_notes(rec, None) if 'GNSS' in n]
     assert len(notes) == 1 and '80 % of the vehicle' in notes[0] and '1.50 m' in notes[0]
+
+
+def test_rtk_lost_for_stretches_is_named_with_their_count_and_length() -> None:
+    """An RTK receiver that falls back to standalone (status 0) for a while: too few such
+    fixes for the 'mostly standalone' note, but the stretches are counted and named."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    frame = LocalFrame.at(LAT0, LON0)
+    # 100 fixes at 1 Hz: standalone at 20-29 s (10 fixes) and 60-64 s (5 fixes)
+    standalone = set(range(20, 30)) | set(range(60, 65))
+    for k in range(100):
+        lat, lon, alt = frame.local_to_geodetic(np.array([[1.0 * k, 0.0, 0.0]]))
+        builder.add_fix(FixSample(T0 + k * 10**9, lat[0], lon[0], alt[0],
+                                  0 if k in standalone else 2))
+    rec = builder.build()
+    assert rec.counters['fixes_unaugmented_stretches'] == 2
+    assert rec.counters['fixes_unaugmented_longest_ms'] == 9000
+    notes = [n for n in _data_notes(rec, None) if 'RTK' in n]
+    assert len(notes) == 1 and '15 of the vehicle\'s 100 fixes' in notes[0], notes
+    assert '2 stretches, the longest 9 s' in notes[0]
+    # ... and their poses are left out: the track has a gap where they were
+    assert rec.counters['fixes_degraded_dropped'] == 15
+    gaps = np.diff(rec.vehicle.stamps_ns) / 1e9
+    assert rec.vehicle.stamps_ns.size == 85 and sorted(gaps)[-2:] == pytest.approx([6.0, 11.0])
+
+
+def test_a_fix_declaring_a_far_worse_accuracy_is_left_out() -> None:
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    frame = LocalFrame.at(LAT0, LON0)
+    for k in range(20):
+        lat, lon, alt = frame.local_to_geodetic(np.array([[1.0 * k, 0.0, 0.0]]))
+        sigma = (0.5, 0.8) if k in (5, 6) else (0.02, 0.03)
+        builder.add_fix(FixSample(T0 + k * 10**9, lat[0], lon[0], alt[0], 2, sigma))
+    rec = builder.build()
+    assert rec.counters['fixes_degraded_dropped'] == 2
+    assert rec.vehicle.stamps_ns.size == 18
+
+
+def test_a_mostly_standalone_drive_keeps_every_fix() -> None:
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    frame = LocalFrame.at(LAT0, LON0)
+    for k in range(20):
+        lat, lon, alt = frame.local_to_geodetic(np.array([[1.0 * k, 0.0, 0.0]]))
+        builder.add_fix(FixSample(T0 + k * 10**9, lat[0], lon[0], alt[0], 0 if k > 5 else 2))
+    rec = builder.build()
+    assert 'fixes_degraded_dropped' not in rec.counters
+    assert rec.vehicle.stamps_ns.size == 20
+
+
+def test_an_rtk_drive_gets_no_gnss_note() -> None:
+    from radar_calib_ros.pipeline import _data_notes
+
+    builder, _, _ = circle_builder()
+    rec = builder.build()
+    assert 'fixes_unaugmented_stretches' not in rec.counters
+    assert not [n for n in _data_notes(rec, None) if 'RTK' in n or 'GNSS' in n]
+
+
+def test_messages_sharing_a_header_stamp_are_one_scan() -> None:
+    """A driver that publishes each scan in pieces (sectors) under one stamp: the pieces
+    are one frame, in stamp order, and the merge is counted and noted."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    builder, _, _ = circle_builder()
+    for k in range(3):       # three scans in five pieces each, pieces out of order
+        for piece in (4, 0, 2, 1, 3):
+            pos = np.array([[10.0 * k + piece, 1.0, 0.0], [10.0 * k + piece, 2.0, 0.0]])
+            builder.add_radar_frame(RadarFrame(T0 + (k + 1) * 10**8, pos,
+                                               np.full(2, float(piece))))
+    rec = builder.build()
+    # the builder's own first frame (at T0) plus three scans
+    assert rec.frame_stamps_ns.tolist() == [T0 + k * 10**8 for k in range(4)]
+    assert np.all(np.diff(rec.targets.frame_index) >= 0)
+    assert np.bincount(rec.targets.frame_index).tolist() == [1, 10, 10, 10]
+    scan_of = rec.targets.frame_index[1:] - 1
+    np.testing.assert_array_equal(scan_of, rec.targets.positions_m[1:, 0] // 10)
+    assert rec.counters['radar_messages_merged'] == 12
+    assert rec.counters['radar_frames'] == 16
+    assert any('12 radar messages shared their header stamp' in n
+               for n in _data_notes(rec, None))
 
 
 @pytest.mark.parametrize('scale, expected', [(1.0, None), (1.004, None), (1.01, -10)])

@@ -540,6 +540,6 @@ def check_vehicle_detection(extrinsics: Extrinsics, recording: Recording,
         raise InsufficientDataError(
             'quality', f'the calibration does not explain the calibration vehicle: where it '
             f'puts the moving vehicle in view ({n_frames} frames) targets with its radial '
-            f'velocity are seen in {ratio:.0%} of them, need {need:.0%}; the agreeing tracks '
+            f'velocity are seen in {ratio:.1%} of them, need {need:.0%}; the agreeing tracks '
             'are most likely other road users (did the vehicle drive through the view?)')
     return ratio
