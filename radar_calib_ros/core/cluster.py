@@ -37,8 +37,12 @@ from radar_calib_ros.types import F64, I64, Targets
 
 #: Windows clustered per bulk query: bounds the memory of the pair and edge arrays
 #: (with 160 "moving" targets per frame, static clutter included, 500 windows give some
-#: 2.5 million candidate pairs).
+#: 2.5 million candidate pairs) ...
 _CHUNK_FRAMES = 500
+#: ... and at most about this many targets per chunk: a 4D imaging radar puts 100+ targets
+#: on one car, every one within eps of the car's others, and 500 of its frames held over a
+#: gigabyte of pairs.
+_CHUNK_TARGETS = 40_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,7 +102,8 @@ def cluster_targets(targets: Targets, cfg: ClusterConfig) -> FrameClusters:
     -----
     Memory and time grow with the number of target pairs within ``eps_m`` whose frames are
     fewer than ``accumulate_frames`` apart, never with the square of the number of targets:
-    windows are processed in chunks of ``_CHUNK_FRAMES`` frames.
+    windows are processed in chunks of ``_CHUNK_FRAMES`` frames or ``_CHUNK_TARGETS``
+    targets, whichever is fewer.
 
     References
     ----------
@@ -120,8 +125,13 @@ def cluster_targets(targets: Targets, cfg: ClusterConfig) -> FrameClusters:
     windows: list[I64] = []
     n_labels = 0
     f_first, f_last = int(frames[0]), int(frames[-1])
-    for w0 in range(f_first, f_last + 1, _CHUNK_FRAMES):
-        w1 = min(w0 + _CHUNK_FRAMES, f_last + 1)
+    w0 = f_first
+    while w0 <= f_last:
+        start = int(np.searchsorted(frames, w0, side='left'))
+        # up to the frame of the _CHUNK_TARGETS-th target from here (at least one frame)
+        by_targets = (int(frames[start + _CHUNK_TARGETS]) if start + _CHUNK_TARGETS < n
+                      else f_last + 1)
+        w1 = min(w0 + _CHUNK_FRAMES, f_last + 1, max(w0 + 1, by_targets))
         lo = int(np.searchsorted(frames, w0 - k_frames + 1, side='left'))
         hi = int(np.searchsorted(frames, w1 - 1, side='right'))
         chunk_labels, chunk_windows = _cluster_windows(
@@ -131,6 +141,7 @@ def cluster_targets(targets: Targets, cfg: ClusterConfig) -> FrameClusters:
         block[member] = chunk_labels[member] + n_labels
         windows.append(chunk_windows)
         n_labels += chunk_windows.shape[0]
+        w0 = w1
     labels[order] = sorted_labels
     cluster_window = np.concatenate(windows) if windows else np.zeros(0, np.int64)
     member = labels >= 0

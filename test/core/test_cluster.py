@@ -164,3 +164,24 @@ def test_labels_invariant_under_permutation_of_targets(seed: int) -> None:
     permuted = cluster_targets(targets.subset(perm), cfg).labels
     for slot in range(cfg.accumulate_frames):
         assert _same_partition(base[perm, slot], permuted[:, slot])
+
+
+@pytest.mark.parametrize('chunk_targets', [25, 60, 10**9])
+def test_chunks_by_target_count_give_the_same_clusters(
+        chunk_targets: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Dense frames (a 4D imaging radar) are clustered in chunks of fewer frames so the
+    pair arrays stay bounded; the windows are independent, so the clusters are the same as
+    in one chunk, including those of the windows at the chunks' edges."""
+    from radar_calib_ros.core import cluster
+
+    targets = _random_scene(np.random.default_rng(3), n_frames=40)
+    cfg = ClusterConfig()
+    monkeypatch.setattr(cluster, '_CHUNK_FRAMES', 10**9)
+    monkeypatch.setattr(cluster, '_CHUNK_TARGETS', 10**9)
+    whole = cluster_targets(targets, cfg)
+    monkeypatch.setattr(cluster, '_CHUNK_TARGETS', chunk_targets)
+    chunked = cluster_targets(targets, cfg)
+    assert whole.centres_m.shape[0] > 40
+    np.testing.assert_array_equal(chunked.labels, whole.labels)
+    np.testing.assert_array_equal(chunked.cluster_window, whole.cluster_window)
+    np.testing.assert_allclose(chunked.centres_m, whole.centres_m)

@@ -607,3 +607,22 @@ def test_gate_rounds_on_every_kth_target_end_in_the_same_fit_of_all(
     assert moved < 0.25 * full.diagnostics['sigma_horizontal_m'], moved
     np.testing.assert_allclose(np.sqrt(np.diag(thinned.covariance)),
                                np.sqrt(np.diag(full.covariance)), rtol=0.15)
+
+
+def test_a_final_fit_of_every_second_target_reports_the_same_uncertainty(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Above ``_FINAL_TARGETS`` (a 4D imaging radar) the final fit too takes every k-th
+    target. Each then stands in for k against the priors, so the directions the priors
+    hold (the height) keep their sigma instead of widening by sqrt(k)."""
+    scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
+    full = _run(scene)
+    monkeypatch.setattr(refine, '_ROUND_TARGETS', full.n_targets // 4)
+    monkeypatch.setattr(refine, '_FINAL_TARGETS', full.n_targets // 2 + 1)
+    half = _run(scene)
+    assert 0.4 * full.n_targets < half.n_targets < 0.6 * full.n_targets
+    sigma_full, sigma_half = np.sqrt(np.diag(full.covariance)), np.sqrt(np.diag(half.covariance))
+    np.testing.assert_allclose(sigma_half[5], sigma_full[5], rtol=0.05)   # height: the prior
+    np.testing.assert_allclose(sigma_half, sigma_full, rtol=0.3)
+    # half the targets are another sample of the same views: within the reported sigma
+    moved = np.linalg.norm(half.extrinsics.translation_m - full.extrinsics.translation_m)
+    assert moved < full.diagnostics['sigma_horizontal_m'], moved
