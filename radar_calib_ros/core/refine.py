@@ -1238,10 +1238,14 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
     bearing = np.arctan2(los[:, 1], los[:, 0]) - bore
     bearing = (bearing + np.pi) % (2 * np.pi) - np.pi
     coverage = uncertainty.view_coverage(g['aspect'], bearing, weight)
-    candidates = _drive_candidates(recording, poses, est, g, data, coverage, bore)
+    # The nearest the vehicle was seen: closer, it is below the radar's vertical view (a
+    # steep or narrow beam leaves a blind zone of 15-20 m under a pole), and a drive
+    # advised there would give nothing (seen on an independent recording: "about 11 m").
+    nearest = float(np.percentile(np.hypot(*(g['pos'][:, :2] - est.translation_m[:2]).T), 2))
+    candidates = _drive_candidates(recording, poses, est, g, data, coverage, bore, nearest)
     advice = uncertainty.drive_advice(sig['sigma_along_boresight_m'],
                                       config.quality.max_boresight_sigma_m, coverage,
-                                      candidates, bore)
+                                      candidates, bore, nearest)
     passes = []
     i_t = slice(3, 6)
     t_target = data.times.t_s
@@ -1299,11 +1303,12 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
 
 def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
                       g: dict[str, F64], data: _Selected, coverage: uncertainty.ViewCoverage,
-                      bore: float) -> list[uncertainty.DriveCandidate]:
+                      bore: float, nearest_m: float) -> list[uncertainty.DriveCandidate]:
     """Drives through the view ranked by the (aspect, bearing) diversity they would add.
 
     Candidates are the vehicle's own recorded positions inside the part of the view where it
-    was seen (range and bearing span of the used targets): roads it can drive. Each is tried
+    was seen (range and bearing span of the used targets, no nearer than ``nearest_m``):
+    roads it can drive. Each is tried
     in both directions; an (aspect bin, bearing) pair scores by its angular distance to the
     bearings already seen at that aspect (saturating at 30 deg).
     """
@@ -1319,8 +1324,8 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     p_bear = (np.arctan2(rel[:, 1], rel[:, 0]) - bore + np.pi) % (2 * np.pi) - np.pi
     # where a drive is most useful: close enough for the bearing to change across the car,
     # far enough to see the whole car
-    inside = ((p_rng <= min(r_max, 60.0)) & (p_rng >= 10.0) & (p_bear >= b_lo - 0.1)
-              & (p_bear <= b_hi + 0.1))
+    inside = ((p_rng <= min(r_max, 60.0)) & (p_rng >= max(10.0, nearest_m))
+              & (p_bear >= b_lo - 0.1) & (p_bear <= b_hi + 0.1))
     if not inside.any():
         return []
     # thin to about one sample per 5 m of road per direction

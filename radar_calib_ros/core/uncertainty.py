@@ -331,7 +331,8 @@ class DriveCandidate:
 
 
 def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverage,
-                 candidates: list[DriveCandidate], boresight_rad: float) -> list[str]:
+                 candidates: list[DriveCandidate], boresight_rad: float,
+                 nearest_m: float = 0.0) -> list[str]:
     """Plain sentences naming the drive that would shrink a large along-boresight sigma.
 
     Parameters
@@ -341,6 +342,7 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     coverage : the (aspect, bearing) histogram of the used targets
     candidates : drives through the view, best first (see ``core.refine``)
     boresight_rad : ENU direction of the boresight's ground projection
+    nearest_m : the nearest the vehicle was seen (the vertical view's edge) [m]
     """
     if not sigma_along_m > threshold_m:
         return []
@@ -368,11 +370,14 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
             f'{cand.range_m:.0f} m from the radar and {abs(math.degrees(cand.bearing_rad)):.0f} '
             f'deg {side} of its boresight: it shows sides already seen from new bearings.')
     across = boresight_rad + math.pi / 2.0
+    # 20-40 m: near enough for wide bearings, far enough to see the whole car; never nearer
+    # than the vehicle was seen at all
+    near = max(20.0, 5.0 * math.ceil(nearest_m / 5.0))
     sentences.append(
-        f'Better still, cross the view (heading {compass_name(across)} or '
-        f'{compass_name(across + math.pi)}) or turn through it within about 20-40 m of the '
-        'radar, so the front and rear are seen from bearings far from the boresight; then '
-        'calibrate again.')
+        f'Better still, where the roads allow, cross the view (heading '
+        f'{compass_name(across)} or {compass_name(across + math.pi)}) or turn through it '
+        f'about {near:.0f}-{near + 20.0:.0f} m from the radar, so the front and rear are '
+        'seen from bearings far from the boresight; then calibrate again.')
     return sentences
 
 

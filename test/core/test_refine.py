@@ -626,3 +626,33 @@ def test_a_final_fit_of_every_second_target_reports_the_same_uncertainty(
     # half the targets are another sample of the same views: within the reported sigma
     moved = np.linalg.norm(half.extrinsics.translation_m - full.extrinsics.translation_m)
     assert moved < full.diagnostics['sigma_horizontal_m'], moved
+
+
+def test_advised_drives_are_never_nearer_than_the_vehicle_was_seen(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Below the nearest range the vehicle was seen at, it is under the radar's vertical
+    view: no drive is advised there, and the 'cross the view' range starts beyond it."""
+    seen: dict[str, object] = {}
+    original = refine._drive_candidates
+
+    def spy(*args):  # type: ignore[no-untyped-def]
+        seen['nearest'] = args[-1]
+        seen['candidates'] = original(*args)
+        return seen['candidates']
+
+    monkeypatch.setattr(refine, '_drive_candidates', spy)
+    ref = _run(make_scene(5, model='interior', geometry='head_on'))
+    nearest = float(seen['nearest'])  # type: ignore[arg-type]
+    assert nearest > 10.0
+    candidates: list[uncertainty.DriveCandidate] = seen['candidates']  # type: ignore[assignment]
+    assert candidates and all(c.range_m >= nearest for c in candidates)
+    near = max(20, 5 * math.ceil(nearest / 5.0))
+    assert f'about {near}-{near + 20} m from the radar' in ' '.join(ref.diagnostics['advice'])
+
+
+def test_the_cross_the_view_range_starts_beyond_a_blind_zone() -> None:
+    coverage = uncertainty.view_coverage(np.zeros(10), np.zeros(10), np.ones(10))
+    text = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], 0.0, nearest_m=27.0))
+    assert 'about 30-50 m from the radar' in text and 'where the roads allow' in text
+    text = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], 0.0, nearest_m=8.0))
+    assert 'about 20-40 m from the radar' in text
