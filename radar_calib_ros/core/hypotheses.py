@@ -187,14 +187,18 @@ def generate_hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording,
 
 
 def merge_intervals_ns(intervals_ns: I64, gap_s: float,
-                       away_stamps_ns: I64 | None = None) -> I64:
+                       away_stamps_ns: I64 | None = None,
+                       vehicle: VehicleTrack | None = None) -> I64:
     """(p, 2) distinct passes from (n, 2) [start, end] intervals.
 
     Two intervals are one pass when they overlap, lie within ``gap_s`` of each other, or
-    (with ``away_stamps_ns``) the vehicle was never away from the radar between them. A
-    track can be cut into fragments by the association, or by a stop at a light (a
-    stopped car has no moving targets), and the fragments of one drive through the view
-    are one observation, not several.
+    (with ``away_stamps_ns``) the vehicle was never away from the radar between them and
+    (with ``vehicle``) did not turn around in between. A track can be cut into fragments
+    by the association, or by a stop at a light (a stopped car has no moving targets), and
+    the fragments of one drive through the view are one observation, not several; but a
+    U-turn just outside the view (a straight road whose ends the radar cannot see) starts
+    another drive, seen from the other side, even within the radar's reach (an independent
+    recording's 13 drives on a straight road counted as 7).
 
     Parameters
     ----------
@@ -203,6 +207,9 @@ def merge_intervals_ns(intervals_ns: I64, gap_s: float,
     away_stamps_ns : ndarray of shape (m,), sorted, optional
         Pose stamps at which the vehicle was out of the radar's reach
         (:func:`away_stamps_ns`).
+    vehicle : VehicleTrack, optional
+        Its heading between two intervals: turned by more than ``_TURNED_AROUND_RAD``, they
+        are two passes.
     """
     intervals_ns = np.asarray(intervals_ns, np.int64).reshape(-1, 2)
     if intervals_ns.shape[0] == 0:
@@ -216,11 +223,24 @@ def merge_intervals_ns(intervals_ns: I64, gap_s: float,
         away = np.asarray(away_stamps_ns, np.int64)
         left = np.searchsorted(away, reach[:-1], side='right')
         right = np.searchsorted(away, starts[1:], side='left')
-        new_pass[1:] &= right > left
+        apart = right > left
+        if vehicle is not None and len(vehicle) >= 2:
+            t = (vehicle.stamps_ns - vehicle.stamps_ns[0]).astype(np.float64)
+            yaw = np.unwrap(vehicle.yaw_rad)
+            turned = np.abs(
+                np.interp((starts[1:] - vehicle.stamps_ns[0]).astype(np.float64), t, yaw)
+                - np.interp((reach[:-1] - vehicle.stamps_ns[0]).astype(np.float64), t, yaw))
+            apart |= turned > _TURNED_AROUND_RAD
+        new_pass[1:] &= apart
     group = np.cumsum(new_pass) - 1
     merged_end = np.full(group[-1] + 1, np.iinfo(np.int64).min, np.int64)
     np.maximum.at(merged_end, group, ends)
     return np.column_stack([starts[new_pass], merged_end])
+
+
+#: Heading change between two intervals of the vehicle that makes them two passes: a
+#: U-turn (or a loop round a block), not the 90 deg of a turn at the junction.
+_TURNED_AROUND_RAD = np.radians(135.0)
 
 
 def away_stamps_ns(vehicle: VehicleTrack, sensor_xy_m: F64, reach_m: float) -> I64:
@@ -243,7 +263,7 @@ def count_passes(tracks: Sequence[SmoothedTrack], sensor_xy_m: F64, vehicle: Veh
     reach = max(float(np.hypot(t.positions_m[:, 0], t.positions_m[:, 1]).max())
                 for t in tracks) + config.hypotheses.pass_margin_m
     away = away_stamps_ns(vehicle, sensor_xy_m, reach)
-    return merge_intervals_ns(intervals, config.hypotheses.pass_gap_s, away)
+    return merge_intervals_ns(intervals, config.hypotheses.pass_gap_s, away, vehicle)
 
 
 def _path_length_m(positions_m: F64) -> float:
@@ -497,7 +517,7 @@ def passes_in_view_ns(vehicle: VehicleTrack, in_view: np.ndarray, sensor_xy_m: F
     stretches = np.column_stack([vehicle.stamps_ns[first[long_enough]],
                                  vehicle.stamps_ns[last[long_enough]]])
     away = away_stamps_ns(vehicle, sensor_xy_m, reach_m + cfg.pass_margin_m)
-    return merge_intervals_ns(stretches, cfg.pass_gap_s, away)
+    return merge_intervals_ns(stretches, cfg.pass_gap_s, away, vehicle)
 
 
 def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidFit,

@@ -230,6 +230,37 @@ def test_merge_intervals_boundaries() -> None:
     np.testing.assert_array_equal(merged, [[0, 15 * s]])
 
 
+def test_a_u_turn_out_of_view_but_within_reach_starts_another_pass() -> None:
+    """A straight road whose ends the radar cannot see: the vehicle drives through, turns
+    round beyond the view but within its reach, and drives back. Two drives seen from
+    opposite sides, not one; a 90 deg turn in between (the junction) keeps one pass."""
+    from radar_calib_ros.types import VehicleTrack
+
+    s = 1_000_000_000
+    t = np.arange(0, 60, 0.1)
+    stamps = (t * s).astype(np.int64)
+
+    def track(yaw: np.ndarray) -> VehicleTrack:
+        n = t.size
+        return VehicleTrack(stamps, np.zeros((n, 3)), yaw, np.zeros((n, 3)), np.zeros(n))
+
+    # in view 0-20 s and 40-60 s, never away in between (no away stamps)
+    intervals = np.array([[0, 20 * s], [40 * s, 60 * s]])
+    never_away = np.zeros(0, np.int64)
+    u_turn = np.where(t < 25, 0.0, np.where(t > 35, np.pi, (t - 25) / 10 * np.pi))
+    merged = hypotheses.merge_intervals_ns(intervals, 2.0, never_away, track(u_turn))
+    np.testing.assert_array_equal(merged, intervals)
+    # the same turn through +-pi wraps: the unwrapped change still counts
+    wrapped = (u_turn + np.pi - 0.1) % (2 * np.pi) - np.pi
+    merged = hypotheses.merge_intervals_ns(intervals, 2.0, never_away, track(wrapped))
+    np.testing.assert_array_equal(merged, intervals)
+    quarter = np.where(t < 25, 0.0, np.where(t > 35, np.pi / 2, (t - 25) / 20 * np.pi))
+    merged = hypotheses.merge_intervals_ns(intervals, 2.0, never_away, track(quarter))
+    np.testing.assert_array_equal(merged, [[0, 60 * s]])
+    # without the vehicle, as before: one pass
+    assert hypotheses.merge_intervals_ns(intervals, 2.0, never_away).shape == (1, 2)
+
+
 def test_vehicle_view_passes_counts_the_passes_a_group_misses() -> None:
     # passes 0 and 1 on one lane, 2 and 3 on another: under the true calibration the
     # vehicle is in view in all four, and its own tracks follow it in all four; a group
