@@ -285,6 +285,12 @@ class CalibConfig:
         specs = {spec.name: spec for spec in parameter_specs()}
         unknown = sorted(set(flat) - set(specs))
         if unknown:
+            groups = {name.split('.', 1)[0] for name in specs if '.' in name}
+            if flat[unknown[0]] is None and unknown[0] in groups:
+                # YAML's "quality:" with nothing under it reads as a null, not as a group
+                raise ConfigError(f'parameter group {unknown[0]!r} is empty: give its '
+                                  f'parameters under it (e.g. {unknown[0]}.'
+                                  f'{_first_in(unknown[0], specs)}) or remove the line')
             raise ConfigError(f'unknown parameter {unknown[0]!r}'
                               + (f' (and {len(unknown) - 1} more)' if len(unknown) > 1 else ''))
         sections: dict[str, dict[str, Any]] = {}
@@ -382,6 +388,10 @@ def _spec(name: str, f: dataclasses.Field[Any], default: Any) -> ParameterSpec:
     return ParameterSpec(name=name, type=type(default), default=default, doc=meta['doc'],
                          lo=meta['lo'], hi=meta['hi'], choices=meta['choices'],
                          read_only=meta['read_only'])
+
+
+def _first_in(group: str, specs: Mapping[str, Any]) -> str:
+    return next(name.split('.', 1)[1] for name in specs if name.startswith(group + '.'))
 
 
 def flatten(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:

@@ -49,6 +49,9 @@ def test_int_is_accepted_for_float_but_not_the_reverse() -> None:
     ({'ground.targets': 'some'}, "'ground.targets' = 'some' is not one of"),
     ({'sync.time_offset': float('nan')}, "'sync.time_offset' must be finite"),
     ({'radar_topic': 3}, "'radar_topic' must be str"),
+    # "quality:" with nothing under it in YAML
+    ({'quality': None}, "parameter group 'quality' is empty: give its parameters under it"),
+    ({'qualty': None}, "unknown parameter 'qualty'"),
 ])
 def test_bad_values_are_named(params: dict[str, object], match: str) -> None:
     with pytest.raises(ConfigError, match=match):
