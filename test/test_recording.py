@@ -327,21 +327,29 @@ def test_fix_status_and_covariance_are_kept_and_summarised() -> None:
     assert len(notes) == 1 and '80 % of the vehicle' in notes[0] and '1.50 m' in notes[0]
 
 
+def _straight_fixes(status: list[int],
+                    sigma: list[tuple[float, float]] | None = None) -> RecordingBuilder:
+    """A builder with one fix a second along a straight line (1 m apart) of the given
+    statuses and declared sigmas."""
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    frame = LocalFrame.at(LAT0, LON0)
+    lat, lon, alt = frame.local_to_geodetic(np.column_stack(
+        [np.arange(len(status), dtype=float), np.zeros(len(status)), np.zeros(len(status))]))
+    for k, st in enumerate(status):
+        builder.add_fix(FixSample(T0 + k * 10**9, lat[k], lon[k], alt[k], st,
+                                  sigma[k] if sigma else (math.nan, math.nan)))
+    return builder
+
+
 def test_rtk_lost_for_stretches_is_named_with_their_count_and_length() -> None:
     """An RTK receiver that falls back to standalone (status 0) for a while: too few such
     fixes for the 'mostly standalone' note, but the stretches are counted and named."""
     from radar_calib_ros.pipeline import _data_notes
 
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    frame = LocalFrame.at(LAT0, LON0)
     # 100 fixes at 1 Hz: standalone at 20-29 s (10 fixes) and 60-64 s (5 fixes)
     standalone = set(range(20, 30)) | set(range(60, 65))
-    for k in range(100):
-        lat, lon, alt = frame.local_to_geodetic(np.array([[1.0 * k, 0.0, 0.0]]))
-        builder.add_fix(FixSample(T0 + k * 10**9, lat[0], lon[0], alt[0],
-                                  0 if k in standalone else 2))
-    rec = builder.build()
+    rec = _straight_fixes([0 if k in standalone else 2 for k in range(100)]).build()
     assert rec.counters['fixes_unaugmented_stretches'] == 2
     assert rec.counters['fixes_unaugmented_longest_ms'] == 9000
     notes = [n for n in _data_notes(rec, None) if 'RTK' in n]
@@ -354,26 +362,14 @@ def test_rtk_lost_for_stretches_is_named_with_their_count_and_length() -> None:
 
 
 def test_a_fix_declaring_a_far_worse_accuracy_is_left_out() -> None:
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    frame = LocalFrame.at(LAT0, LON0)
-    for k in range(20):
-        lat, lon, alt = frame.local_to_geodetic(np.array([[1.0 * k, 0.0, 0.0]]))
-        sigma = (0.5, 0.8) if k in (5, 6) else (0.02, 0.03)
-        builder.add_fix(FixSample(T0 + k * 10**9, lat[0], lon[0], alt[0], 2, sigma))
-    rec = builder.build()
+    sigma = [(0.5, 0.8) if k in (5, 6) else (0.02, 0.03) for k in range(20)]
+    rec = _straight_fixes([2] * 20, sigma).build()
     assert rec.counters['fixes_degraded_dropped'] == 2
     assert rec.vehicle.stamps_ns.size == 18
 
 
 def test_a_mostly_standalone_drive_keeps_every_fix() -> None:
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    frame = LocalFrame.at(LAT0, LON0)
-    for k in range(20):
-        lat, lon, alt = frame.local_to_geodetic(np.array([[1.0 * k, 0.0, 0.0]]))
-        builder.add_fix(FixSample(T0 + k * 10**9, lat[0], lon[0], alt[0], 0 if k > 5 else 2))
-    rec = builder.build()
+    rec = _straight_fixes([0 if k > 5 else 2 for k in range(20)]).build()
     assert 'fixes_degraded_dropped' not in rec.counters
     assert rec.vehicle.stamps_ns.size == 20
 
