@@ -888,22 +888,22 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     rounds = 0
     stride = 1
 
-    def fit_round(keep: np.ndarray, stride: int) -> tuple[float, float, float]:
-        """Fit the gated targets (every ``stride``-th by target number) from ``est``;
+    def fit_round(keep: np.ndarray, every: int) -> tuple[float, float, float]:
+        """Fit the gated targets (every ``every``-th by target number) from ``est``;
         returns how far it moved."""
         nonlocal data, model, fit, est, profile, scatter
-        if stride > 1:
-            keep = keep & (candidates % stride == 0)
+        if every > 1:
+            keep = keep & (candidates % every == 0)
         data = _select(candidates[keep], times.subset(keep), est, recording, poses, scatter,
                        config, fov)
-        model, x0 = linearised_at(data, est, profile, stride)
+        model, x0 = linearised_at(data, est, profile, every)
         fit = _solve(model, x0)
         rot, trans, tau, profile = model.unpack(fit.x)
         moved = _change(est, rot, trans, tau)
         est = Extrinsics(rot, trans, tau)
         scatter = _scatter(model, fit.x, cfg.position_sigma_m, config)
         _LOG.debug('refine round %d: %d targets (every %d), %d iterations, moved %s', rounds,
-                   data.index.size, stride, fit.iterations, moved)
+                   data.index.size, every, fit.iterations, moved)
         return moved
 
     for rounds in range(1, cfg.max_iterations + 1):
