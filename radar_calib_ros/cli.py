@@ -16,6 +16,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
+from numpy.linalg import LinAlgError
+
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import CalibrationError, exit_code
 
@@ -429,6 +431,15 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     except KeyboardInterrupt:
         print('error: interrupted', file=sys.stderr)
         return 130
+    except (ArithmeticError, ValueError, LinAlgError) as err:
+        # A numerical failure on data nothing above foresaw (a clock jump once made the
+        # tracking filter's covariance indefinite): the data cannot be calibrated as they
+        # are; say where, not a bare traceback (-v shows it).
+        _LOG.debug('unexpected failure', exc_info=True)
+        print(f'error: the calibration failed on these data ({type(err).__name__}: {err}); '
+              'rerun with -v for the details and please report it with the recording',
+              file=sys.stderr)
+        return 1
 
 
 def console_main() -> None:

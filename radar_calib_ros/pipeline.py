@@ -97,7 +97,10 @@ def track_targets(recording: Recording, config: CalibConfig, *,
         clusters = cluster.cluster_targets(moving_targets, config.cluster)
     with stage('associate'):
         local = associate.associate_clusters(moving_targets, clusters, config.associate)
-    return TrackedTargets(moving_index[local.target_index], local.track_id)
+        index = moving_index[local.target_index]
+        track_id = associate.split_tracks_at_time_gaps(
+            local.track_id, recording.frame_stamps_ns[targets.frame_index[index]])
+    return TrackedTargets(index, track_id)
 
 
 #: Step of the clock offsets tried when the hypotheses do not agree at the given one [s].
@@ -173,6 +176,33 @@ def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:
         f'sync.max_pose_gap {sync.max_pose_gap:g} s, so no radar frame can be paired with a '
         'pose: record the poses faster or, for straight steady driving, raise '
         'sync.max_pose_gap')
+
+
+#: Radar frames outside the pose stream worth a note (share), and a jump of the radar's
+#: stamps worth naming [s].
+_OUTSIDE_POSES_SHARE = 0.05
+_CLOCK_JUMP_S = 10.0
+
+
+def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
+    """A note when a good share of the radar frames lies outside the vehicle's pose stream
+    in time, naming the largest jump of the radar's stamps: a radar clock that jumped (a
+    lost time sync, a reboot) leaves those frames without a pose, and without this note the
+    drives they held would only be called unused."""
+    stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns, config.sync.time_offset)
+    poses = recording.vehicle.stamps_ns
+    outside = (stamps < poses[0]) | (stamps > poses[-1])
+    if outside.mean() <= _OUTSIDE_POSES_SHARE:
+        return []
+    note = (f'{int(outside.sum())} of the {stamps.size} radar frames '
+            f'({100 * outside.mean():.0f} %) lie outside the vehicle\'s pose stream in time '
+            f'({_span(poses)}) and were not used')
+    gaps = np.diff(stamps) * 1e-9
+    if gaps.size and gaps.max() > _CLOCK_JUMP_S:
+        k = int(np.argmax(gaps))
+        note += (f'; the radar\'s stamps jump by {gaps[k]:.1f} s after '
+                 f'{stamps[k] * 1e-9:.3f} s (a clock that lost its sync?)')
+    return [note + '. Check the radar\'s time synchronisation and sync.time_offset.']
 
 
 def _span(stamps_ns: np.ndarray) -> str:
@@ -291,7 +321,8 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
                                         config)
         report.extra['vehicle_detection_ratio'] = detection
         report.extra['radial_velocity_sign'] = sign * config.radar.velocity_sign
-        notes = _data_notes(recording, flip_note if sign < 0 else None)
+        notes = (_data_notes(recording, flip_note if sign < 0 else None)
+                 + _clock_notes(recording, config))
         if notes:
             # only when there are some: an empty list in result.yaml has no parameter type,
             # and a node declaring its parameters from the file would refuse it

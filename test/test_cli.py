@@ -31,6 +31,27 @@ def test_directory_that_is_not_a_bag(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert code == 2 and 'error: ' in err
 
 
+def test_a_numerical_failure_is_one_line_and_exit_1(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """An unforeseen numerical failure deep in the pipeline (a clock jump once made the
+    tracking filter fail) ends in one line naming it, exit 1, no result file."""
+    import numpy as np
+
+    from radar_calib_ros import cli
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise np.linalg.LinAlgError('Matrix is not positive definite')
+
+    monkeypatch.setattr(cli, '_refuse_ambiguous_radar', lambda *args: None)
+    monkeypatch.setattr(cli, 'calibrate_bag', fail)
+    code, _, err = _run(['calibrate', str(tmp_path), '--output', str(tmp_path / 'r.yaml')],
+                        capsys)
+    assert code == 1 and 'Traceback' not in err and err.count('\n') == 1
+    assert 'LinAlgError: Matrix is not positive definite' in err
+    assert not (tmp_path / 'r.yaml').exists()
+
+
 def test_bad_params_file_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     params = tmp_path / 'p.yaml'
     params.write_text('/**:\n  ros__parameters:\n    vehicle: {lenght: 4.0}\n')

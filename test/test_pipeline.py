@@ -120,3 +120,18 @@ def test_a_2d_radar_is_named_in_the_advice() -> None:
                                   + np.array([0.0, 0.0, -1.5]))
     tilted = dataclasses.replace(flat, targets=targets)
     assert tilted.has_elevation and not _data_notes(tilted, None)
+
+
+def test_radar_frames_outside_the_pose_stream_are_noted_with_the_jump() -> None:
+    """A radar clock that jumps by an hour halfway: the frames after the jump have no pose;
+    the note counts them and names the jump. Frames all inside the pose stream: no note."""
+    from radar_calib_ros.pipeline import _clock_notes
+
+    rec = _recording(0.1)
+    assert _clock_notes(rec, CalibConfig()) == []
+    stamps = rec.frame_stamps_ns.copy()
+    stamps[75:] += 3600 * 10**9
+    jumped = dataclasses.replace(rec, frame_stamps_ns=stamps)
+    notes = _clock_notes(jumped, CalibConfig())
+    assert len(notes) == 1 and '75 of the 150 radar frames (50 %)' in notes[0], notes
+    assert 'jump by 3600.1 s after' in notes[0]

@@ -298,3 +298,35 @@ def _drop_short_tracks(track: I64, frame_index: I64, min_frames: int) -> I64:
     renumber = np.full(int(track.max()) + 1, -1, np.int64)
     renumber[kept] = np.arange(kept.size)
     return np.where(track >= 0, renumber[np.maximum(track, 0)], -1)
+
+
+#: Longest time between two measurements of one track [s]: association links clusters by
+#: frame number, and frames far apart in time (a radar clock that jumps, a recording paused
+#: and resumed) are not one motion. A track across a jump of an hour made the tracking
+#: filter predict over 3600 s and fail.
+MAX_TRACK_GAP_S = 2.0
+
+
+def split_tracks_at_time_gaps(track_id: I64, target_stamps_ns: I64,
+                              max_gap_s: float = MAX_TRACK_GAP_S) -> I64:
+    """(m,) track ids with every track cut where its consecutive measurements are more
+    than ``max_gap_s`` apart; -1 (no track) stays -1. The pieces get
+    new ids after the existing ones; a track without such a gap keeps its id."""
+    out = np.array(track_id, np.int64, copy=True)
+    member = np.flatnonzero(out >= 0)
+    if member.size < 2:
+        return out
+    order = member[np.lexsort((target_stamps_ns[member], out[member]))]
+    ids, stamps = out[order], target_stamps_ns[order]
+    step = np.diff(stamps)
+    same = ids[1:] == ids[:-1]
+    cut = same & (step > round(max_gap_s * 1e9))
+    if not cut.any():
+        return out
+    piece = np.concatenate([[0], np.cumsum(cut)])
+    # per track, the pieces after its first get new ids
+    first_piece = piece[np.searchsorted(ids, ids, side='left')]
+    later = piece > first_piece
+    _, new_id = np.unique(piece[later], return_inverse=True)
+    out[order[later]] = int(out.max()) + 1 + new_id.ravel()
+    return out

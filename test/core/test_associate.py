@@ -110,3 +110,22 @@ def test_short_tracks_are_dropped_and_ids_are_dense() -> None:
     # numbered 0.. by first frame
     assert np.unique(track[owner == 1]).tolist() == [0]
     assert np.unique(track[owner == 2]).tolist() == [1]
+
+
+def test_tracks_are_cut_where_their_stamps_jump() -> None:
+    """A radar clock that jumps by an hour between two frames: association links the
+    frames by number, the tracks are cut at the jump (the filter would otherwise predict
+    over 3600 s and fail); small steps and the noise label -1 are kept."""
+    from radar_calib_ros.core.associate import split_tracks_at_time_gaps
+
+    s = 1_000_000_000
+    # track 0: 0.0, 0.1, 0.2 s then 3600.3, 3600.4 s; track 1: 1.0, 2.5 s (1.5 s: kept);
+    # noise; track 2 (targets out of order) jumps 5 s
+    track = np.array([0, 0, 0, 0, 0, 1, 1, -1, 2, 2, 2])
+    stamps = np.array([0, s // 10, s // 5, 3600 * s + 3 * s // 10, 3600 * s + 4 * s // 10,
+                       s, 5 * s // 2, 7 * s, 20 * s, 10 * s, 11 * s])
+    out = split_tracks_at_time_gaps(track, stamps)
+    assert out[:3].tolist() == [0, 0, 0] and out[5:8].tolist() == [1, 1, -1]
+    assert out[3] == out[4] and out[3] not in (0, 1, 2)
+    assert out[9] == out[10] == 2 and out[8] not in (0, 1, 2, out[3])
+    np.testing.assert_array_equal(split_tracks_at_time_gaps(track[:3], stamps[:3]), [0, 0, 0])
