@@ -122,11 +122,16 @@ def _without_empty_lists(mapping: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def write_atomic(path: str | Path, text: str) -> None:
-    """Write a file via a temporary file in the same directory, fsync, rename."""
+    """Write a file via a temporary file in the same directory, fsync, rename; with the
+    permissions a plainly created file gets (mkstemp's 0600 would keep a node running as
+    another user from reading the result)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
         with os.fdopen(fd, 'w', encoding='utf-8') as fh:
             fh.write(text)
             fh.flush()

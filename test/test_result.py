@@ -99,3 +99,19 @@ def test_write_atomic_keeps_old_file_on_failure(tmp_path: Path) -> None:
         write_atomic(path, 123)  # type: ignore[arg-type]
     assert path.read_text() == 'old\n'
     assert [p.name for p in tmp_path.iterdir()] == ['r.yaml']
+
+
+def test_written_files_get_the_umask_permissions(tmp_path: Path) -> None:
+    """Not mkstemp's 0600: a node running as another user must be able to read a result."""
+    import os
+    import stat
+
+    old = os.umask(0o022)
+    try:
+        write_atomic(tmp_path / 'r.yaml', 'x: 1\n')
+        os.umask(0o077)
+        write_atomic(tmp_path / 'private.yaml', 'x: 1\n')
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / 'r.yaml').stat().st_mode) == 0o644
+    assert stat.S_IMODE((tmp_path / 'private.yaml').stat().st_mode) == 0o600
