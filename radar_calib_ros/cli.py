@@ -124,6 +124,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     if args.all_radars:
         return cmd_calibrate_all_radars(args, out)
     _refuse_ambiguous_radar(args.bag, config)
+    _warn_frame_id(args.bag, config)
     progress = _Progress(args.progress if args.progress is not None else sys.stderr.isatty())
     result, read_s = calibrate_bag(args.bag, config, progress=progress)
     calibration = result.calibration(config)
@@ -205,6 +206,18 @@ def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
             f'the bag has {len(topics)} radar topics ({", ".join(topics)}) and the parameters '
             'name none: calibrate them all with `radar-calib calibrate BAG --all-radars`, or '
             'set radar_topic to one of them')
+
+
+def _warn_frame_id(bag: str, config: CalibConfig) -> None:
+    """Warn when the radar topic's header frame_id is not ``radar.frame_id``."""
+    from radar_calib_ros.io.bag import radar_frame_ids
+    from radar_calib_ros.io.messages import frame_id_mismatch
+    frames = radar_frame_ids(bag)
+    topic = config.radar_topic if config.radar_topic in frames else (
+        next(iter(frames)) if len(frames) == 1 else None)
+    mismatch = frame_id_mismatch(frames.get(topic, ''), config.radar.frame_id) if topic else None
+    if mismatch:
+        print(f'warning: {mismatch}', file=sys.stderr)
 
 
 def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:

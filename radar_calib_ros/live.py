@@ -224,6 +224,10 @@ class LiveCalibrator:
             return False
         except Exception as err:  # noqa: BLE001 - see _internal_error
             return self._internal_error('radar', err)
+        mismatch = msgs.frame_id_mismatch(getattr(msg.header, 'frame_id', ''),
+                                          self._config.radar.frame_id)
+        if mismatch:
+            self._warn('radar.frame_id', mismatch)
         if frame.dropped_nonfinite:
             self.counters['rejected.radar_targets.nonfinite'] += frame.dropped_nonfinite
             self._warn('radar.nonfinite', f'radar PointCloud2 with {frame.dropped_nonfinite} '

@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from radar_calib_ros.cli import main
+from radar_calib_ros.config import CalibConfig
 
 
 def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -44,6 +45,7 @@ def test_a_numerical_failure_is_one_line_and_exit_1(
         raise np.linalg.LinAlgError('Matrix is not positive definite')
 
     monkeypatch.setattr(cli, '_refuse_ambiguous_radar', lambda *args: None)
+    monkeypatch.setattr(cli, '_warn_frame_id', lambda *args: None)
     monkeypatch.setattr(cli, 'calibrate_bag', fail)
     code, _, err = _run(['calibrate', str(tmp_path), '--output', str(tmp_path / 'r.yaml')],
                         capsys)
@@ -127,3 +129,23 @@ def test_vehicle_never_in_view_exits_1_without_result(
     assert code == 1
     assert err.startswith('error: ') and err.count('\n') == 1
     assert not (tmp_path / 'r.yaml').exists()
+
+
+def test_a_radar_frame_id_unlike_the_parameter_is_warned(
+        capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    from radar_calib_ros import cli
+    from radar_calib_ros.io import bag as bag_io
+
+    config = CalibConfig()
+    monkeypatch.setattr(bag_io, 'radar_frame_ids',
+                        lambda path: {config.radar_topic: 'radar_front_link'})
+    cli._warn_frame_id('some.bag', config)
+    err = capsys.readouterr().err
+    assert err.startswith("warning: the radar's messages are in frame 'radar_front_link'")
+    assert 'set radar.frame_id: radar_front_link' in err
+    # the same frame (a leading slash aside), or a header without one: nothing to say
+    for same in ('/radar', 'radar', ''):
+        monkeypatch.setattr(bag_io, 'radar_frame_ids',
+                            lambda path, f=same: {config.radar_topic: f})
+        cli._warn_frame_id('some.bag', config)
+        assert capsys.readouterr().err == ''

@@ -285,6 +285,24 @@ def test_nan_targets_are_dropped_and_the_frame_kept(tmp_path: Path, store: Any) 
     consistent(live)
 
 
+def test_a_cloud_in_another_frame_than_radar_frame_id_is_warned_once(
+        tmp_path: Path, store: Any) -> None:
+    """The calibration is published for radar.frame_id; a cloud in another frame would
+    leave its TF consumers without a transform: said once, and the frame still buffered."""
+    live, log = make_live(tmp_path)
+    for k in range(3):
+        message = msgs.encode_pointcloud(store, T0_NS + k * 10**8, 'radar_front_link',
+                                         np.full((2, 3), 10.0), np.ones(2))
+        assert live.on_radar(message)
+    assert log.count("messages are in frame 'radar_front_link' but radar.frame_id is "
+                     "'radar'") == 1
+    quiet, quiet_log = make_live(tmp_path / 'other')
+    assert quiet.on_radar(msgs.encode_pointcloud(store, T0_NS, '/radar', np.full((2, 3), 10.0),
+                                                 np.ones(2)))
+    assert quiet_log.count('radar.frame_id') == 0
+    consistent(live)
+
+
 def test_navsatfix_without_fix_or_nan_and_bad_odometry(tmp_path: Path, store: Any) -> None:
     live, log = make_live(tmp_path)
     for k in range(4):

@@ -28,7 +28,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     'POINTCLOUD2', 'NAVSATFIX', 'ODOMETRY', 'RADARSCAN', 'VELOCITY_FIELD_NAMES',
-    'get_typestore', 'stamp_ns', 'decode_pointcloud', 'decode_radarscan', 'decode_navsatfix',
+    'get_typestore', 'stamp_ns', 'frame_id_mismatch', 'decode_pointcloud', 'decode_radarscan',
+    'decode_navsatfix',
     'decode_odometry', 'encode_pointcloud', 'encode_navsatfix', 'encode_odometry',
     'msg_schemas_dir',
 ]
@@ -106,6 +107,19 @@ def get_typestore() -> Typestore:
 def stamp_ns(header: Any) -> int:
     """Header stamp (``builtin_interfaces/Time``) as integer nanoseconds."""
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def frame_id_mismatch(header_frame_id: str, configured: str) -> str | None:
+    """A warning when the radar's messages name another frame than ``radar.frame_id``:
+    the calibration is published for the configured name, and a consumer of the cloud that
+    looks up its own frame in TF would not find it. None when they agree (or the header
+    names none)."""
+    cloud = str(header_frame_id or '').lstrip('/')
+    if not cloud or cloud == configured.lstrip('/'):
+        return None
+    return (f"the radar's messages are in frame '{cloud}' but radar.frame_id is "
+            f"'{configured}': the calibration is published for '{configured}'; set "
+            f"radar.frame_id: {cloud} so that TF consumers of the cloud find it")
 
 
 def _field_table(fields: Sequence[Any]) -> dict[str, tuple[int, int]]:
