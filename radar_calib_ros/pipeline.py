@@ -218,6 +218,14 @@ def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
         notes.append('The Odometry twist did not describe the vehicle\'s motion (zero, or in '
                      'another frame): the velocity was taken from the positions. Check the '
                      'driver: REP-105 puts the twist in child_frame_id.')
+    if recording.counters.get('odometry_orientation_compass'):
+        notes.append('The Odometry orientation is a compass heading (clockwise from north); it '
+                     'was read so. REP-103 asks for yaw counter-clockwise from east (ENU).')
+    if recording.counters.get('odometry_orientation_replaced'):
+        notes.append('The Odometry orientation did not describe the vehicle\'s travel (identity, '
+                     'or another frame\'s): the heading was taken from the course over '
+                     'ground. '
+                     'Check the driver\'s orientation.')
     if not recording.has_elevation:
         notes.append('The radar reports no elevation (z = 0 for every target: a 2-D radar): '
                      'roll, pitch and altitude cannot be measured from its targets; the '

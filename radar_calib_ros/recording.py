@@ -336,7 +336,8 @@ class RecordingBuilder:
             rate = np.array([o.yaw_rate_rps for o in odoms], np.float64)
             to = (o_stamps - stamps[0]) * 1e-9
             yaw_true_at = _interp_angle(t, to, yaw_true)
-            yaw = frame.true_yaw_to_local(yaw_true_at, lat, lon)
+            yaw = _checked_orientation(t, positions, yaw_true_at, lat, lon, frame,
+                                       cfg.vehicle.min_heading_speed, self.counters)
             vx = np.interp(t, to, v_body[:, 0])
             vy = np.interp(t, to, v_body[:, 1])
             c, s = np.cos(yaw), np.sin(yaw)
@@ -410,6 +411,52 @@ def _degraded_fixes(status: F64, sigma_h: F64) -> np.ndarray:
         degraded |= known & (sigma_h > limit)
     # at least two fixes must stay
     return degraded if (~degraded).sum() >= 2 else np.zeros(status.size, bool)
+
+
+#: Median disagreement of the Odometry heading with the course over ground above which the
+#: orientation is not the vehicle's [rad], and the least moving samples to judge it on.
+_ORIENTATION_TOLERANCE_RAD = math.radians(20.0)
+_ORIENTATION_SAMPLES = 10
+
+
+def _checked_orientation(t: F64, positions: F64, yaw_true: F64, lat: F64, lon: F64,
+                         frame: LocalFrame, min_speed: float, counters: Counter[str]) -> F64:
+    """(n,) local-grid heading from the Odometry orientation where it describes the
+    vehicle's travel, else from a compass-convention reading of it, else from the course
+    over ground.
+
+    Why: the heading turns the vehicle's box and its body-frame twist. Drivers in the field
+    write a compass heading (clockwise from north) into the quaternion, or leave it the
+    identity; both were taken at their word, the twist then failed its check and was blamed
+    (fourth probe: 22 cm and a 66 cm sigma). Where the vehicle moves (speed above
+    ``min_speed``, over +-1 s) the course over ground is its heading, forwards; reversing is
+    rare enough for the median to ignore.
+    """
+    yaw = frame.true_yaw_to_local(yaw_true, lat, lon)
+    velocities = _position_velocities(t, positions[:, :2], _TWIST_CHECK_SPAN_S)
+    moving = np.hypot(velocities[:, 0], velocities[:, 1]) > max(min_speed, 2.0)
+    if int(moving.sum()) < _ORIENTATION_SAMPLES:
+        return yaw
+    course = np.arctan2(velocities[moving, 1], velocities[moving, 0])
+
+    def disagreement(heading: F64) -> float:
+        return float(np.median(np.abs((heading[moving] - course + np.pi) % (2 * np.pi)
+                                      - np.pi)))
+
+    as_given = disagreement(yaw)
+    if as_given <= _ORIENTATION_TOLERANCE_RAD:
+        return yaw
+    compass = frame.true_yaw_to_local(np.pi / 2.0 - yaw_true, lat, lon)
+    if disagreement(compass) <= _ORIENTATION_TOLERANCE_RAD:
+        counters['odometry_orientation_compass'] = 1
+        _LOG.warning('the Odometry orientation reads as a compass heading (clockwise from '
+                     'north), not as REP-103 yaw (counter-clockwise from east): used so')
+        return compass
+    counters['odometry_orientation_replaced'] = 1
+    _LOG.warning('the Odometry orientation does not describe the vehicle\'s travel (median '
+                 '%.0f deg off its course over ground): the heading is taken from the course '
+                 'over ground instead', math.degrees(as_given))
+    return _course_over_ground(t, _position_velocities(t, positions), min_speed)[0]
 
 
 def _interp_angle(tq: F64, t: F64, angle: F64) -> F64:

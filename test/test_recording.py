@@ -55,6 +55,41 @@ def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: flo
     return builder, frame, omega
 
 
+@pytest.mark.parametrize('convention', ['compass', 'identity'])
+def test_an_odometry_orientation_unlike_the_travel_is_read_or_replaced(
+        convention: str) -> None:
+    """A compass heading (clockwise from north) in the quaternion is read as such; an
+    identity quaternion gives way to the course over ground. Either way the heading is the
+    true one again, the correct body twist is kept, and a note says what was done."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    radius, speed = 30.0, 15.0
+    frame = LocalFrame.at(LAT0, LON0)
+    omega = speed / radius
+    t = np.arange(0.0, 20.0, 0.02)
+    angle = omega * t
+    local = np.column_stack([radius * np.cos(angle) - radius, radius * np.sin(angle),
+                             np.zeros_like(t)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    yaw_true = angle + np.pi / 2 + frame.local_convergence_rad(lat, lon)
+    written = np.pi / 2 - yaw_true if convention == 'compass' else np.zeros_like(t)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i, ti in enumerate(t):
+        stamp = T0 + int(round(ti * 1e9))
+        builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2))
+        builder.add_odometry(_odom(stamp, written[i], speed, omega))
+    rec = builder.build()
+    key = ('odometry_orientation_compass' if convention == 'compass'
+           else 'odometry_orientation_replaced')
+    assert rec.counters[key] == 1
+    assert 'odometry_twist_replaced' not in rec.counters
+    inner = (t > 1.0) & (t < 19.0)
+    error = np.degrees(np.abs(_wrap(rec.vehicle.yaw_rad - (angle + np.pi / 2))))[inner]
+    assert error.max() < (0.1 if convention == 'compass' else 2.0), error.max()
+    assert any('Odometry orientation' in n for n in _data_notes(rec, None))
+
+
 def test_interpolation_at_15mps_hits_true_pose() -> None:
     radius, speed = 30.0, 15.0
     builder, _, omega = circle_builder(radius, speed)
