@@ -656,3 +656,43 @@ def test_the_cross_the_view_range_starts_beyond_a_blind_zone() -> None:
     assert 'about 30-50 m from the radar' in text and 'where the roads allow' in text
     text = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], 0.0, nearest_m=8.0))
     assert 'about 20-40 m from the radar' in text
+
+
+def test_halves_that_disagree_beyond_the_covariance_are_flagged() -> None:
+    shift = np.array([0.0, 0.0, math.radians(1.0), 0.3, 0.4, 0.0, 0.0])
+    tight = np.diag([math.radians(0.1) ** 2] * 3 + [0.01] * 3 + [1e-6])
+    loose = np.diag([math.radians(0.6) ** 2] * 3 + [0.01] * 3 + [1e-6])
+    assert refine._halves_disagreement(shift, tight) == pytest.approx((1.0, 0.5))
+    assert refine._halves_disagreement(shift, loose) is None
+    assert refine._halves_disagreement(None, tight) is None
+
+
+def test_a_radar_turned_halfway_through_is_said_and_covered(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pole turns 1.5 deg in yaw halfway through the drives: the fit is a blend of two
+    poses. Here the pass jackknife already widens the rotation enough to cover the error
+    (so the halves' test, at its threshold, stays quiet); at a lower threshold the wiring
+    shows: the sentence names the halves and the whole difference joins the covariance.
+    The same scene unturned: no such sentence."""
+    scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
+    plain = _run(scene)
+    assert not any('half of the drives' in a for a in plain.diagnostics['advice'])
+    targets = scene.recording.targets
+    n_pass = int(scene.pass_of_target.max()) + 1
+    later = scene.pass_of_target >= n_pass // 2
+    turn = Rotation.from_euler('z', -1.5, degrees=True).as_matrix()
+    positions = targets.positions_m.copy()
+    positions[later] = positions[later] @ turn.T
+    turned = dataclasses.replace(scene, recording=dataclasses.replace(
+        scene.recording, targets=dataclasses.replace(targets, positions_m=positions)))
+    quiet = _run(turned)
+    err = errors(quiet.extrinsics, scene.truth)
+    sigma_rot_deg = np.degrees(np.sqrt(np.trace(quiet.covariance[:3, :3])))
+    assert err['rotation'] < 2.0 * sigma_rot_deg, (err, sigma_rot_deg)
+    monkeypatch.setattr(refine, '_HALVES_CHI2', 1.0)
+    ref = _run(turned)
+    advice = ' '.join(ref.diagnostics['advice'])
+    assert 'second half of the drives disagree' in advice and 'moved' in advice, advice
+    assert 0.7 < ref.diagnostics['halves_rotation_deg'] < 2.5
+    widened = np.degrees(np.sqrt(np.trace(ref.covariance[:3, :3])))
+    assert widened > sigma_rot_deg + 0.5 * ref.diagnostics['halves_rotation_deg']
