@@ -46,8 +46,9 @@ class WorldConfig:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SyncConfig:
+    # up to a minute: a radar on GPS or TAI time against a vehicle on UTC is 18, 19 or 37 s off
     time_offset: float = _p(0.0, 'seconds added to radar stamps before matching to poses',
-                            lo=-10.0, hi=10.0)
+                            lo=-60.0, hi=60.0)
     estimate_time_offset: bool = _p(
         True, 'estimate the remaining radar/GNSS clock offset in the final refinement')
     max_time_offset: float = _p(0.25, 'largest clock offset searched for [s]', lo=0.0, hi=2.0)

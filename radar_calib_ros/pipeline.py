@@ -108,7 +108,8 @@ _CLOCK_STEP_S = 0.05
 
 
 def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground: GroundPlane,
-                config: CalibConfig) -> tuple[list[Hypothesis], HypothesisSelection]:
+                config: CalibConfig, *, leaps: bool = True
+                ) -> tuple[list[Hypothesis], HypothesisSelection]:
     """Stage 6, and again at other clock offsets when its hypotheses do not agree.
 
     The paper's stages pair radar stamps with vehicle poses as given (plus
@@ -146,8 +147,14 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
         if best is None or score > best[0]:
             best = (score, offset, hyps, selection)
     if best is None:
-        raise InsufficientDataError(
-            failure.stage, f'{failure.reason} (also at clock offsets up to +-{max_off:g} s)')
+        reason = f'{failure.reason} (also at clock offsets up to +-{max_off:g} s)'
+        leap = _leap_offset(tracks, recording, ground, config) if leaps else None
+        if leap is not None:
+            reason += (f'; they agree with the radar stamps shifted by {leap:+g} s, a whole '
+                       'number of leap seconds (GPS, UTC and TAI time differ by 18, 19 and 37 '
+                       f's): set sync.time_offset to {config.sync.time_offset + leap:g} and '
+                       'calibrate again')
+        raise InsufficientDataError(failure.stage, reason)
     _, offset, hyps, selection = best
     _LOG.warning('the hypotheses agree only with the radar stamps shifted by %+.2f s: a clock '
                  'offset between radar and vehicle (sync.time_offset); the final refinement '
@@ -155,6 +162,28 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
     ext = selection.extrinsics
     shifted_ext = Extrinsics(ext.rotation, ext.translation_m, ext.time_offset_s + offset)
     return hyps, replace(selection, extrinsics=shifted_ext)
+
+
+#: Clock offsets of a radar and a vehicle on different time scales [s]: GPS - UTC, TAI -
+#: GPS, TAI - UTC (leap seconds since 2017), either way round.
+_LEAP_OFFSETS_S = (18.0, -18.0, 19.0, -19.0, 37.0, -37.0)
+
+
+def _leap_offset(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground: GroundPlane,
+                 config: CalibConfig) -> float | None:
+    """The first of ``_LEAP_OFFSETS_S`` at which stage 6 agrees (with its search of small
+    offsets around it), else None. Only named in
+    the failure, not taken: a whole time scale apart is a set-up fault to fix at the source
+    (and the result's clock offset must stay the one the user's parameters define)."""
+    for leap in _LEAP_OFFSETS_S:
+        shifted = replace(config, sync=replace(config.sync,
+                                               time_offset=config.sync.time_offset + leap))
+        try:
+            _hypotheses(tracks, recording, ground, shifted, leaps=False)
+        except InsufficientDataError:
+            continue
+        return leap
+    return None
 
 
 def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:

@@ -74,6 +74,23 @@ def test_no_agreement_anywhere_or_no_offset_estimation_keeps_the_reason(
     assert tried == [0.0]
 
 
+def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A radar on GPS time and a vehicle on UTC: 18 s apart. Stage 6 agrees only there; the
+    failure says which sync.time_offset to set (taking it silently would leave the result's
+    clock offset unlike the user's parameters). Nowhere: the reason as before."""
+    tried = _fake_stage6(monkeypatch, {-17.95: 5})
+    with pytest.raises(InsufficientDataError,
+                       match=r'shifted by -18 s, a whole number of leap seconds .* set '
+                             r'sync.time_offset to -18 and calibrate again'):
+        pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+    assert 18.0 in tried and -18.0 in tried and -17.95 in tried
+    _fake_stage6(monkeypatch, {})
+    with pytest.raises(InsufficientDataError) as err:
+        pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+    assert 'leap' not in str(err.value)
+
+
 def _recording(fix_period_s: float, radar_start_s: float = 0.0) -> Any:
     from radar_calib_ros.io.geo import LocalFrame
     from radar_calib_ros.recording import RecordingBuilder
