@@ -448,9 +448,10 @@ def _residual_arrays(refinement: Refinement | None) -> Mapping[str, Any] | None:
 
 
 def _scatter_with_median(ax: Axes, x: F64, y: F64, edges: F64, colour: str,
-                         trend: str | None = None) -> None:
-    """Scatter, binned median and quartiles; with ``trend`` ('range' or 'azimuth') the
-    straight-line trend of the binned medians and the rotation it corresponds to."""
+                         trend: str | None = None, mean: bool = False) -> None:
+    """Scatter, binned median and quartiles (and with ``mean`` the binned mean); with
+    ``trend`` ('range' or 'azimuth') the straight-line trend of the binned medians and the
+    rotation it corresponds to."""
     sel = _thin(x.size)
     ax.scatter(x[sel], y[sel], s=3, alpha=0.25, color=colour, edgecolors='none')
     # bins of a handful of targets (a stray cluster) draw wild quartiles: 15 at least
@@ -458,6 +459,9 @@ def _scatter_with_median(ax: Axes, x: F64, y: F64, edges: F64, colour: str,
     if c.size:
         ax.plot(c, med, '-', color='k', lw=1.8, label='median')
         ax.fill_between(c, lo, hi, color='k', alpha=0.15, label='25-75 %')
+    if mean:
+        cm, avg, _, _ = _binned(x, y, edges, stat='mean', min_count=15)
+        ax.plot(cm, avg, '--', color='tab:purple', lw=1.4, label='mean')
     if trend is not None and c.size >= 4:
         # Each bin median weighted by its standard error (1.253 sigma / sqrt(n), sigma from
         # the quartiles): sparse, wide far bins must not set the slope. The slope's error
@@ -506,9 +510,11 @@ def figure_refinement_residuals(refinement: Refinement | None) -> Figure | None:
         y = np.asarray(res.get(key, np.zeros(0)), float)
         if y.size != rng.size:
             continue
+        along = key == 'along_los_m'
         _scatter_with_median(axes[row, 0], rng, y, r_edges, colour,
-                             trend='range' if key != 'along_los_m' else None)
-        _scatter_with_median(axes[row, 1], az, y, a_edges, colour, trend='azimuth')
+                             trend=None if along else 'range', mean=along)
+        _scatter_with_median(axes[row, 1], az, y, a_edges, colour, trend='azimuth',
+                             mean=along)
 
         axes[row, 0].set_ylabel(f'residual {label}')
         axes[row, 1].set_ylabel(f'residual {label}')
@@ -518,7 +524,9 @@ def figure_refinement_residuals(refinement: Refinement | None) -> Figure | None:
     axes[2, 1].set_xlabel('target azimuth in the sensor frame [deg] (left positive)')
     fig.suptitle(f'Position residuals of the final refinement ({rng.size} targets, target '
                  'minus reflection profile)\na slope over range or azimuth would mean a '
-                 'rotation error', fontsize=11)
+                 'rotation error\nthe profile follows the targets\' (robust) mean: where they '
+                 'spread unevenly along the line of sight, the median sits off zero',
+                 fontsize=10)
     return fig
 
 
