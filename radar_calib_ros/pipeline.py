@@ -218,6 +218,27 @@ def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
     in time, naming the largest jump of the radar's stamps: a radar clock that jumped (a
     lost time sync, a reboot) leaves those frames without a pose, and without this note the
     drives they held would only be called unused."""
+    notes = []
+    counters = recording.counters
+    offset_ms = counters.get('radar_stamp_offset_ms')
+    jump_ms = counters.get('radar_stamp_jump_ms')
+    # with a jump, the offset is a blend of before and after: the jump is the news
+    if offset_ms is not None and jump_ms is None:
+        notes.append(f'As the recording received them, the radar\'s header stamps are '
+                     f'{abs(offset_ms) / 1000:.1f} s {"ahead of" if offset_ms > 0 else "behind"} '
+                     f'the vehicle\'s (sync.time_offset is {config.sync.time_offset:g} s): if '
+                     'their clocks differ (GPS, UTC or TAI time, or no time sync), set '
+                     'sync.time_offset to about '
+                     f'{config.sync.time_offset - offset_ms / 1000:.1f}.')
+    if jump_ms is not None:
+        notes.append(f'The radar\'s header stamps jump by {jump_ms / 1000:+.1f} s against the '
+                     f'recording\'s clock {counters.get("radar_stamp_jump_at_ms", 0) / 1000:.0f} '
+                     's after its first message (a clock that lost its sync?): the frames on '
+                     'one side of the jump are paired with the wrong poses or none.')
+    return notes + _outside_poses_notes(recording, config)
+
+
+def _outside_poses_notes(recording: Recording, config: CalibConfig) -> list[str]:
     stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns, config.sync.time_offset)
     poses = recording.vehicle.stamps_ns
     outside = (stamps < poses[0]) | (stamps > poses[-1])

@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import ConfigError, InsufficientDataError
@@ -91,6 +92,11 @@ class RecordingBuilder:
         # 30 minutes) does not make every full collection in the node pause longer.
         self._odoms: list[tuple[float, ...]] = []
         self.counters: Counter[str] = Counter()
+        # received - header stamp [ns] of each radar message and each pose message, in the
+        # order received (a recorder's clock is one clock for both; see _receipt_checks)
+        self._radar_lag: list[int] = []
+        self._radar_received: list[int] = []
+        self._pose_lag: list[int] = []
         # kept current on every append so that the node can check its memory bound per message
         self._nbytes = 0
 
@@ -110,6 +116,16 @@ class RecordingBuilder:
         self.counters['targets'] += n
         if frame.dropped_nonfinite:
             self.counters['targets_nonfinite'] += frame.dropped_nonfinite
+
+    def note_receipt(self, role: str, stamp_ns: int, received_ns: int) -> None:
+        """Record when a message of ``role`` ('radar', 'navsat' or 'odom') with this header
+        stamp was received (a bag's record time): the two clocks' offset and jumps are
+        judged on it at ``build``."""
+        if role == 'radar':
+            self._radar_lag.append(int(received_ns) - int(stamp_ns))
+            self._radar_received.append(int(received_ns))
+        else:
+            self._pose_lag.append(int(received_ns) - int(stamp_ns))
 
     def add_fix(self, fix: FixSample) -> bool:
         """Append one NavSatFix; returns False (and counts why) when it is dropped."""
@@ -204,6 +220,8 @@ class RecordingBuilder:
         copy._frame_velocities = list(self._frame_velocities)
         copy._fixes = list(self._fixes)
         copy._odoms = list(self._odoms)
+        copy._radar_lag, copy._pose_lag = list(self._radar_lag), list(self._pose_lag)
+        copy._radar_received = list(self._radar_received)
         copy.counters = Counter(self.counters)
         copy._nbytes = self._nbytes
         return copy
@@ -257,6 +275,9 @@ class RecordingBuilder:
         frame, vehicle = self._build_vehicle()
         counters = dict(self.counters)
         counters.update(self._unaugmented_stretches())
+        counters.update(_receipt_checks(np.asarray(self._radar_lag, np.int64),
+                                        np.asarray(self._radar_received, np.int64),
+                                        np.asarray(self._pose_lag, np.int64)))
         merged = int(order.size - frame_stamps.size)
         if merged:
             counters['radar_messages_merged'] = merged
@@ -385,6 +406,39 @@ def interpolate_poses(vehicle: VehicleTrack, stamps_ns: I64, max_gap_s: float) -
     gap = tv[upper] - tv[upper - 1]
     valid = (tq >= tv[0]) & (tq <= tv[-1]) & (gap <= max_gap_s)
     return PoseSamples(positions, yaw, velocities, yaw_rate, valid)
+
+
+#: Offset between the radar's and the poses' header stamps, as one recorder received them,
+#: and a step of the radar's, worth naming [s] (transport latencies are milliseconds to a
+#: few hundred); frames over which a step must persist.
+_RECEIPT_OFFSET_S = 1.0
+_RECEIPT_WINDOW = 15
+
+
+def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64) -> dict[str, int]:
+    """Counters from the receipt lags (received - header stamp, ns, in received order): the
+    radar stamps' offset from the poses' ('radar_stamp_offset_ms': radar minus pose, when
+    over ``_RECEIPT_OFFSET_S``), and the largest lasting step of the radar's lag
+    ('radar_stamp_jump_ms', 'radar_stamp_jump_at_ms' after the first radar message).
+
+    Why: a radar on GPS time and a vehicle on UTC are 18 s apart, a radar clock that loses
+    its sync jumps; the stamps alone cannot tell a jump of 5 s from a pause in the data, the
+    recorder's clock can."""
+    out: dict[str, int] = {}
+    if radar_lag.size < _RECEIPT_WINDOW or pose_lag.size < _RECEIPT_WINDOW:
+        return out
+    offset_ns = float(np.median(pose_lag) - np.median(radar_lag))
+    if abs(offset_ns) > _RECEIPT_OFFSET_S * 1e9:
+        out['radar_stamp_offset_ms'] = int(round(offset_ns / 1e6))
+    smooth = ndimage.median_filter(radar_lag.astype(np.float64), size=_RECEIPT_WINDOW,
+                                   mode='nearest')
+    step = np.diff(smooth)
+    k = int(np.argmax(np.abs(step)))
+    if abs(step[k]) > _RECEIPT_OFFSET_S * 1e9:
+        # a lag that drops is a stamp that jumps forward
+        out['radar_stamp_jump_ms'] = int(round(-step[k] / 1e6))
+        out['radar_stamp_jump_at_ms'] = int((radar_received[k + 1] - radar_received[0]) // 10**6)
+    return out
 
 
 #: A fix declaring more than this many times the drive's median horizontal sigma (and

@@ -152,3 +152,18 @@ def test_radar_frames_outside_the_pose_stream_are_noted_with_the_jump() -> None:
     notes = _clock_notes(jumped, CalibConfig())
     assert len(notes) == 1 and '75 of the 150 radar frames (50 %)' in notes[0], notes
     assert 'jump by 3600.1 s after' in notes[0]
+
+
+def test_the_recorders_clock_names_a_radar_offset_or_jump() -> None:
+    from radar_calib_ros.pipeline import _clock_notes
+
+    rec = _recording(0.1)
+    ahead = dataclasses.replace(rec, counters={**rec.counters, 'radar_stamp_offset_ms': 18000})
+    notes = _clock_notes(ahead, CalibConfig())
+    assert len(notes) == 1 and '18.0 s ahead of the vehicle' in notes[0]
+    assert 'set sync.time_offset to about -18.0' in notes[0]
+    jumped = dataclasses.replace(rec, counters={**rec.counters, 'radar_stamp_offset_ms': 2500,
+                                                'radar_stamp_jump_ms': 5000,
+                                                'radar_stamp_jump_at_ms': 209000})
+    notes = _clock_notes(jumped, CalibConfig())
+    assert len(notes) == 1 and 'jump by +5.0 s' in notes[0] and '209 s after' in notes[0]

@@ -474,3 +474,26 @@ def test_an_odometry_speed_scale_error_is_rescaled_to_the_fixes(
     measured = np.hypot(*rec.vehicle.velocities_mps[inner, :2].T)
     tolerance = 0.002 if expected is not None else 0.003
     assert np.median(np.abs(measured / speed[inner] - 1.0)) < tolerance
+
+
+def test_receipt_times_show_a_radar_clock_offset_and_a_jump() -> None:
+    """The recorder's clock is one for both streams: radar stamps 18 s ahead of the poses'
+    (GPS against UTC time) give an offset; a radar clock that jumps by 5 s halfway gives a
+    jump (which a pause in the data, stamps and receipt alike, does not)."""
+    from radar_calib_ros.recording import _receipt_checks
+
+    rng = np.random.default_rng(1)
+    received = np.arange(600, dtype=np.int64) * 66_666_667
+    latency = rng.integers(5, 80, 600) * 1_000_000
+    pose_lag = rng.integers(2, 8, 3000).astype(np.int64) * 1_000_000
+    ahead = _receipt_checks(latency - 18 * 10**9, received, pose_lag)
+    assert ahead['radar_stamp_offset_ms'] == pytest.approx(18_000, abs=100)
+    assert 'radar_stamp_jump_ms' not in ahead
+    jumped = latency.copy()
+    jumped[300:] -= 5 * 10**9          # stamps 5 s later from frame 300 on
+    out = _receipt_checks(jumped, received, pose_lag)
+    assert out['radar_stamp_jump_ms'] == pytest.approx(5000, abs=100)
+    assert out['radar_stamp_jump_at_ms'] == pytest.approx(300 * 66.67, abs=200)
+    paused = received.copy()
+    paused[300:] += 60 * 10**9         # nothing for a minute: stamps and receipt move together
+    assert _receipt_checks(latency, paused, pose_lag) == {}

@@ -205,7 +205,7 @@ def radar_frame_ids(path: str | Path) -> dict[str, str]:
             if connection.msgtype not in RADAR_TYPES or connection.topic in frames:
                 continue
             frames[connection.topic] = ''
-            for _, msg in _messages(reader, [connection], path):
+            for _, _, msg in _messages(reader, [connection], path):
                 frames[connection.topic] = str(msg.header.frame_id)
                 break
     return dict(sorted(frames.items()))
@@ -251,8 +251,10 @@ def read_recording(path: str | Path, config: CalibConfig, *,
         total = sum(c.msgcount for c in connections)
         velocity_field = config.radar.velocity_field
         done = 0
-        for connection, msg in _messages(reader, connections, path):
+        for connection, received_ns, msg in _messages(reader, connections, path):
             _add_message(builder, roles[connection.topic], connection, msg, velocity_field)
+            builder.note_receipt(roles[connection.topic], msgs.stamp_ns(msg.header),
+                                 received_ns)
             done += 1
             if progress is not None and done % _PROGRESS_EVERY == 0:
                 progress(done, total)
@@ -262,8 +264,9 @@ def read_recording(path: str | Path, config: CalibConfig, *,
 
 
 def _messages(reader: AnyReader, connections: list[Connection],
-              path: Path) -> Iterator[tuple[Connection, Any]]:
-    """Deserialised messages of the given connections, storage errors translated."""
+              path: Path) -> Iterator[tuple[Connection, int, Any]]:
+    """(connection, record time [ns], message) of the given connections, deserialised,
+    storage errors translated."""
     iterator = reader.messages(connections=connections)
     while True:
         try:
@@ -272,14 +275,14 @@ def _messages(reader: AnyReader, connections: list[Connection],
             raise BagReadError(f'reading bag {str(path)!r}: {_reason(err)}') from err
         if item is None:
             return
-        connection, _bag_ns, rawdata = item
+        connection, bag_ns, rawdata = item
         try:
             msg = reader.deserialize(rawdata, connection.msgtype)
         except (AnyReaderError, SerdeError, *_STORAGE_ERRORS) as err:
             raise BagReadError(f'reading bag {str(path)!r}: a {connection.msgtype} message on '
                                f'{connection.topic} cannot be deserialised: {_reason(err)}'
                                ) from err
-        yield connection, msg
+        yield connection, int(bag_ns), msg
 
 
 def _add_message(builder: RecordingBuilder, role: str, connection: Connection, msg: Any,
