@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pyproj
@@ -33,9 +34,11 @@ def _one_frame(builder: RecordingBuilder) -> None:
 
 
 def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: float = 50.0,
-                   duration_s: float = 20.0) -> tuple[RecordingBuilder, LocalFrame, float]:
+                   duration_s: float = 20.0, written: Any = None,
+                   ) -> tuple[RecordingBuilder, LocalFrame, float]:
     """Fixes and odometry of a vehicle on a circle around the local origin's neighbour,
-    exact (noise-free), starting at angle 0; returns (builder, frame, angular rate)."""
+    exact (noise-free), starting at angle 0; returns (builder, frame, angular rate).
+    ``written(yaw_true)``, if given, is the heading the Odometry orientation carries."""
     frame = LocalFrame.at(LAT0, LON0)
     omega = speed_mps / radius_m
     t = np.arange(0.0, duration_s, 1.0 / rate_hz)
@@ -46,12 +49,13 @@ def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: flo
     yaw_local = angle + np.pi / 2
     # the odometry reports yaw against true north: add back the local grid's convergence
     yaw_true = yaw_local + frame.local_convergence_rad(lat, lon)
+    heading = yaw_true if written is None else written(yaw_true)
     builder = RecordingBuilder(CalibConfig())
     _one_frame(builder)
     for i, ti in enumerate(t):
         stamp = T0 + int(round(ti * 1e9))
         builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2))
-        builder.add_odometry(_odom(stamp, yaw_true[i], speed_mps, omega))
+        builder.add_odometry(_odom(stamp, heading[i], speed_mps, omega))
     return builder, frame, omega
 
 
@@ -63,22 +67,12 @@ def test_an_odometry_orientation_unlike_the_travel_is_read_or_replaced(
     true one again, the correct body twist is kept, and a note says what was done."""
     from radar_calib_ros.pipeline import _data_notes
 
-    radius, speed = 30.0, 15.0
-    frame = LocalFrame.at(LAT0, LON0)
-    omega = speed / radius
+    def written(yaw_true: np.ndarray) -> np.ndarray:
+        return np.pi / 2 - yaw_true if convention == 'compass' else np.zeros_like(yaw_true)
+
+    builder, _, omega = circle_builder(30.0, 15.0, written=written)
     t = np.arange(0.0, 20.0, 0.02)
     angle = omega * t
-    local = np.column_stack([radius * np.cos(angle) - radius, radius * np.sin(angle),
-                             np.zeros_like(t)])
-    lat, lon, alt = frame.local_to_geodetic(local)
-    yaw_true = angle + np.pi / 2 + frame.local_convergence_rad(lat, lon)
-    written = np.pi / 2 - yaw_true if convention == 'compass' else np.zeros_like(t)
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    for i, ti in enumerate(t):
-        stamp = T0 + int(round(ti * 1e9))
-        builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2))
-        builder.add_odometry(_odom(stamp, written[i], speed, omega))
     rec = builder.build()
     key = ('odometry_orientation_compass' if convention == 'compass'
            else 'odometry_orientation_replaced')
