@@ -179,7 +179,11 @@ def _leap_offset(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground
         shifted = replace(config, sync=replace(config.sync,
                                                time_offset=config.sync.time_offset + leap))
         try:
-            _hypotheses(tracks, recording, ground, shifted, leaps=False)
+            _, selection = _hypotheses(tracks, recording, ground, shifted, leaps=False)
+            # other road users' tracks agree by chance at some offset (seen on a recording
+            # whose vehicle never came into view): the vehicle must be seen where that
+            # calibration puts it, as for every result
+            quality.check_vehicle_detection(selection.extrinsics, recording, shifted)
         except InsufficientDataError:
             continue
         return leap

@@ -80,11 +80,24 @@ def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
     failure says which sync.time_offset to set (taking it silently would leave the result's
     clock offset unlike the user's parameters). Nowhere: the reason as before."""
     tried = _fake_stage6(monkeypatch, {-17.95: 5})
+    seen = {'vehicle': True}
+
+    def detection(extrinsics: Any, recording: Any, config: CalibConfig) -> float:
+        if not seen['vehicle']:
+            raise InsufficientDataError('quality', 'does not explain the vehicle')
+        return 1.0
+    monkeypatch.setattr(pipeline.quality, 'check_vehicle_detection', detection)
     with pytest.raises(InsufficientDataError,
                        match=r'shifted by -18 s, a whole number of leap seconds .* set '
                              r'sync.time_offset to -18 and calibrate again'):
         pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
     assert 18.0 in tried and -18.0 in tried and -17.95 in tried
+    # other road users agreeing by chance at such an offset: the vehicle is not seen where
+    # their calibration puts it, so no hint (a vehicle-never-in-view recording got one)
+    seen['vehicle'] = False
+    with pytest.raises(InsufficientDataError) as err:
+        pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+    assert 'leap' not in str(err.value)
     _fake_stage6(monkeypatch, {})
     with pytest.raises(InsufficientDataError) as err:
         pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
