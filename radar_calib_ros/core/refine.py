@@ -912,9 +912,33 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         keep[keep] = _in_passes(times.subset(keep).t_s, config.hypotheses.pass_gap_s)
         index = candidates[keep]
         if index.size < _MIN_TARGETS:
+            # Said with where the estimate came from: in the first round it is the paper's
+            # stages', and a vehicle with nothing near it there means those stages agreed
+            # on something else (a fourth probe's radar folded a third of the car's radial
+            # velocities, and the bare count told the user nothing).
+            if rounds == 1:
+                where = ('where the paper\'s stages put it: they agreed on tracks that were '
+                         'not the vehicle\'s (other road users by chance, or a radar whose '
+                         'radial velocities fold at its unambiguous limit); check the drive '
+                         'and the radar\'s velocity range')
+            else:
+                unchecked = config if cfg.velocity_gate_mps <= 0 else dataclasses.replace(
+                    config, refine=dataclasses.replace(cfg, velocity_gate_mps=0.0))
+                near = int(_gate(est, candidates, track_ids, track_size, accepted, times,
+                                 recording, poses, unchecked, first_round=False,
+                                 view=view).sum())
+                angle, shift, _ = _change(start, est.rotation, est.translation_m,
+                                          est.time_offset_s)
+                why = ('radial velocities off the vehicle\'s motion: folded at the radar\'s '
+                       'unambiguous limit, or a scale or sign error?')
+                where = (f'moving as the vehicle does ({near} lie near it, but with {why})'
+                         if near >= _MIN_TARGETS else
+                         f'after the first round moved the estimate {shift:.1f} m and '
+                         f'{math.degrees(angle):.1f} deg from the paper\'s stages\' (what '
+                         f'pulls it away is most likely {why})')
             raise InsufficientDataError(
                 'refine', f'only {index.size} targets within {cfg.gate_m} m of the vehicle '
-                f'box, need at least {_MIN_TARGETS}')
+                f'box {where}, need at least {_MIN_TARGETS}')
         # Targets are numbered frame by frame, so every k-th number thins each frame evenly
         # and picks the same targets again when the gate barely changes.
         stride = max(1, index.size // _ROUND_TARGETS)

@@ -386,7 +386,8 @@ def test_model_term_is_capped_at_the_fits_own_variance() -> None:
 def test_too_few_targets_near_the_vehicle_raise() -> None:
     scene = make_scene(8, model='interior', n_passes=1)
     empty = TrackedTargets(scene.tracked.target_index[:5], scene.tracked.track_id[:5])
-    with pytest.raises(InsufficientDataError, match='refine'):
+    with pytest.raises(InsufficientDataError, match=r"refine: only \d+ targets within 1.5 m "
+                       r"of the vehicle box where the paper's stages put it: .*velocities fold"):
         refine.refine_extrinsics(scene.initial, scene.recording, empty, scene.selection,
                                  scene.config)
 
@@ -696,3 +697,23 @@ def test_a_radar_turned_halfway_through_is_said_and_covered(
     assert 0.7 < ref.diagnostics['halves_rotation_deg'] < 2.5
     widened = np.degrees(np.sqrt(np.trace(ref.covariance[:3, :3])))
     assert widened > sigma_rot_deg + 0.5 * ref.diagnostics['halves_rotation_deg']
+
+
+def test_a_later_round_without_targets_says_how_far_the_first_moved(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """When the vehicle's targets are lost after the first round (a fourth probe's radar
+    folded its radial velocities, and the first fit flew 120 m off), the failure says how
+    far the estimate moved and what most likely pulled it."""
+    scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
+    gate = refine._gate
+
+    def lose_later(*args, **kwargs):  # type: ignore[no-untyped-def]
+        keep = gate(*args, **kwargs)
+        return keep if kwargs['first_round'] else np.zeros_like(keep)
+
+    monkeypatch.setattr(refine, '_gate', lose_later)
+    with pytest.raises(InsufficientDataError,
+                       match=r'only 0 targets within 1.5 m of the vehicle box after the first '
+                             r'round moved the estimate \d+\.\d m and \d+\.\d deg from the '
+                             r"paper's stages' .*folded at the radar's unambiguous limit"):
+        _run(scene)
