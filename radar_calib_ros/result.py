@@ -121,6 +121,21 @@ def _without_empty_lists(mapping: Mapping[str, Any]) -> dict[str, Any]:
             for k, v in mapping.items() if not (isinstance(v, (list, tuple)) and not v)}
 
 
+def _umask() -> int:
+    """The process umask, read without changing it where Linux shows it (setting and
+    restoring it would race with the node's other threads creating files)."""
+    try:
+        with open('/proc/self/status', encoding='ascii') as fh:
+            for line in fh:
+                if line.startswith('Umask:'):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_atomic(path: str | Path, text: str) -> None:
     """Write a file via a temporary file in the same directory, fsync, rename; with the
     permissions a plainly created file gets (mkstemp's 0600 would keep a node running as
@@ -129,9 +144,7 @@ def write_atomic(path: str | Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
     try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, 'w', encoding='utf-8') as fh:
             fh.write(text)
             fh.flush()
