@@ -717,3 +717,15 @@ def test_a_later_round_without_targets_says_how_far_the_first_moved(
                              r'round moved the estimate \d+\.\d m and \d+\.\d deg from the '
                              r"paper's stages' .*folded at the radar's unambiguous limit"):
         _run(scene)
+
+
+def test_a_refinement_running_far_from_the_start_stops(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Farther than _MAX_SHIFT_M / _MAX_TURN_DEG from the paper's estimate the fit follows
+    something else: it stops with the distance and the likely cause (here the bound is
+    lowered below the scene's 0.3 m start error; at its value the scene calibrates)."""
+    scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
+    monkeypatch.setattr(refine, '_MAX_SHIFT_M', 0.05)
+    with pytest.raises(InsufficientDataError,
+                       match=r"refine: the final refinement ran \d+\.\d m and \d+\.\d deg away "
+                             r"from the paper's stages' estimate .*folded"):
+        _run(scene)
