@@ -929,8 +929,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                                  view=view).sum())
                 angle, shift, _ = _change(start, est.rotation, est.translation_m,
                                           est.time_offset_s)
-                why = ('radial velocities off the vehicle\'s motion: folded at the radar\'s '
-                       'unambiguous limit, or a scale or sign error?')
+                why = f'radial velocities off the vehicle\'s motion: {_VELOCITY_SUSPECTS}'
                 where = (f'moving as the vehicle does ({near} lie near it, but with {why})'
                          if near >= _MIN_TARGETS else
                          f'after the first round moved the estimate {shift:.1f} m and '
@@ -967,7 +966,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     row_band = np.concatenate([np.repeat(band, 3), band])
     pb = uncertainty.pass_jackknife_covariance(j * w[:, None], r * w, row_band, jp.T @ jp,
                                                prior_term=False)
-    halves_shift = _halves_shift(j * w[:, None], r * w, data, jp.T @ jp, pc.n_passes)
+    halves_shift = _halves_shift(pc, jp.T @ jp)
     covariance = uncertainty.shrink_correlations(uncertainty.combined_covariance(pc, pb),
                                                  pc.n_passes)
     cov7 = uncertainty.add_along_boresight(_pose_block(covariance, estimate_tau), est.rotation,
@@ -1052,6 +1051,8 @@ _HALVES_CHI2 = 16.27
 #: else (a fourth probe's folded radial velocities took it 120 m and 173 deg away).
 _MAX_SHIFT_M = 5.0
 _MAX_TURN_DEG = 10.0
+#: What most often puts radial velocities off the vehicle's motion, for the failures above.
+_VELOCITY_SUSPECTS = "folded at the radar's unambiguous limit, or a scale or sign error?"
 
 
 def _check_not_diverged(start: Extrinsics, est: Extrinsics) -> None:
@@ -1061,8 +1062,7 @@ def _check_not_diverged(start: Extrinsics, est: Extrinsics) -> None:
             'refine', f'the final refinement ran {shift:.1f} m and {math.degrees(angle):.1f} '
             'deg away from the paper\'s stages\' estimate (decimetres and about a degree '
             'off): it follows something other than the vehicle, most likely radial '
-            'velocities off its motion (folded at the radar\'s unambiguous limit, or a scale '
-            'or sign error?)')
+            f'velocities off its motion ({_VELOCITY_SUSPECTS})')
 
 
 def _halves_disagreement(shift: F64 | None, cov7: F64) -> tuple[float, float] | None:
@@ -1079,18 +1079,15 @@ def _halves_disagreement(shift: F64 | None, cov7: F64) -> tuple[float, float] | 
     return float(np.degrees(np.linalg.norm(d_rot))), float(np.linalg.norm(shift[3:6]))
 
 
-def _halves_shift(jacobian: F64, residuals: F64, data: _Selected, prior_hessian: F64,
-                  n_passes: int) -> F64 | None:
-    """(p,) one-step estimate from the first half of the passes (in time) minus that from
-    the second half, None with fewer than four passes."""
-    if n_passes < 4:
+def _halves_shift(passes: uncertainty.PassCovariance, prior_hessian: F64) -> F64 | None:
+    """(p,) one-step estimate from the first half of the passes (in time: pass ids run in
+    time order) minus that from the second half, None with fewer than four passes."""
+    if passes.n_passes < 4:
         return None
-    half = (data.pass_id >= n_passes // 2).astype(np.int64)
-    rows = np.concatenate([np.repeat(half, 3), half])
-    split = uncertainty.pass_jackknife_covariance(jacobian, residuals, rows, prior_hessian,
-                                                  prior_term=False)
+    half = (np.arange(passes.n_passes) >= passes.n_passes // 2).astype(np.int64)
+    influences = uncertainty.group_influences(passes, half, prior_hessian)
     # influences[g]: the step that leaving half g out takes, i.e. towards the other half
-    shift: F64 = split.influences[1] - split.influences[0]
+    shift: F64 = influences[1] - influences[0]
     return shift
 
 

@@ -20,7 +20,7 @@ vertical uncertainty can never be smaller than what the height prior leaves open
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -38,13 +38,17 @@ class PassCovariance:
 
     covariance : (p, p) reported covariance (jackknife, t-scaled, plus priors);
     influences : (G, p) one-step change of the estimate when each pass is left out;
-    n_passes : G; t_scale : the factor applied to the jackknife standard deviations.
+    n_passes : G; t_scale : the factor applied to the jackknife standard deviations;
+    hessians, gradients : (G, p, p) and (G, p) each pass's J^T J and J^T r, for leaving
+    out coarser groups of passes (:func:`group_influences`).
     """
 
     covariance: F64
     influences: F64
     n_passes: int
     t_scale: float
+    hessians: F64 = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    gradients: F64 = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 def pass_jackknife_covariance(jacobian: F64, residuals: F64, pass_id: I64,
@@ -86,10 +90,7 @@ def pass_jackknife_covariance(jacobian: F64, residuals: F64, pass_id: I64,
         g_pass[g] = j_g.T @ residuals[rows]
     hessian = h_pass.sum(axis=0) + prior_hessian
     h_inv = _inverse(hessian)
-    # The full solution balances data and prior gradients; without pass p the rest of the
-    # gradient is -g_p, hence the step (H - H_p)^-1 g_p.
-    influences = np.stack([_inverse(hessian - h_pass[g]) @ g_pass[g] for g in range(n_passes)]
-                          ) if n_passes else np.zeros((0, n_par))
+    influences = _left_out_steps(h_pass, g_pass, hessian)
     if n_passes >= 2:
         centred = influences - influences.mean(axis=0)
         jack = (n_passes - 1) / n_passes * centred.T @ centred
@@ -103,7 +104,27 @@ def pass_jackknife_covariance(jacobian: F64, residuals: F64, pass_id: I64,
     if prior_term:
         covariance = covariance + h_inv @ prior_hessian @ h_inv
     covariance = 0.5 * (covariance + covariance.T)
-    return PassCovariance(covariance, influences, n_passes, t_scale)
+    return PassCovariance(covariance, influences, n_passes, t_scale, h_pass, g_pass)
+
+
+def _left_out_steps(h_groups: F64, g_groups: F64, hessian: F64) -> F64:
+    """(G, p) one-step change of the estimate when each group's rows are left out. The
+    full solution balances data and prior gradients; without group g the rest of the
+    gradient is -g_g, hence the step (H - H_g)^-1 g_g."""
+    if h_groups.shape[0] == 0:
+        return np.zeros((0, hessian.shape[0]))
+    return np.stack([_inverse(hessian - h) @ g for h, g in zip(h_groups, g_groups)])
+
+
+def group_influences(passes: PassCovariance, group_of_pass: I64, prior_hessian: F64) -> F64:
+    """(K, p) one-step change of the estimate when each group of passes (0..K-1, one label
+    per pass of ``passes``) is left out: the passes' own Hessians and gradients summed per
+    group, no second pass over the data (e.g. the first and second half of a drive)."""
+    hessian = passes.hessians.sum(axis=0) + prior_hessian
+    groups = np.unique(group_of_pass)
+    h_groups = np.stack([passes.hessians[group_of_pass == k].sum(axis=0) for k in groups])
+    g_groups = np.stack([passes.gradients[group_of_pass == k].sum(axis=0) for k in groups])
+    return _left_out_steps(h_groups, g_groups, hessian)
 
 
 def combined_covariance(passes: PassCovariance, bands: PassCovariance,

@@ -272,6 +272,27 @@ def test_jackknife_of_a_linear_mean_is_the_classic_one() -> None:
     np.testing.assert_allclose(pc.influences[:, 0], loo - values.mean(), atol=1e-12)
 
 
+def test_leaving_out_groups_of_passes_is_the_jackknife_over_those_groups() -> None:
+    """The halves of a drive from the per-pass products equal a jackknife run over the
+    halves' rows, and for a mean they are the means of the other half minus the mean."""
+    rng = np.random.default_rng(4)
+    values = rng.normal(size=40)
+    pass_id = np.repeat(np.arange(8), 5)
+    jac = np.ones((40, 1))
+    res = values.mean() - values
+    prior = np.array([[0.5]])
+    pc = uncertainty.pass_jackknife_covariance(jac, res, pass_id, prior)
+    half_of_pass = (np.arange(8) >= 4).astype(np.int64)
+    grouped = uncertainty.group_influences(pc, half_of_pass, prior)
+    direct = uncertainty.pass_jackknife_covariance(jac, res, half_of_pass[pass_id], prior)
+    np.testing.assert_allclose(grouped, direct.influences, atol=1e-12)
+    exact = uncertainty.group_influences(
+        uncertainty.pass_jackknife_covariance(jac, res, pass_id, np.zeros((1, 1))),
+        half_of_pass, np.zeros((1, 1)))
+    np.testing.assert_allclose(exact[:, 0], [values[20:].mean() - values.mean(),
+                                             values[:20].mean() - values.mean()], atol=1e-12)
+
+
 def test_shrinking_correlations_keeps_variances_and_fills_thin_directions() -> None:
     # three passes' worth of disagreement: a rank-deficient, nearly singular 3x3 block
     rng = np.random.default_rng(0)
