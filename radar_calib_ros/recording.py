@@ -274,7 +274,6 @@ class RecordingBuilder:
         targets = Targets(positions, velocities, frame_index)
         frame, vehicle = self._build_vehicle()
         counters = dict(self.counters)
-        counters.update(self._unaugmented_stretches())
         counters.update(_receipt_checks(np.asarray(self._radar_lag, np.int64),
                                         np.asarray(self._radar_received, np.int64),
                                         np.asarray(self._pose_lag, np.int64)))
@@ -286,22 +285,6 @@ class RecordingBuilder:
         return Recording(frame_stamps, targets, vehicle, frame,
                          radar_frame_id=self._config.radar.frame_id, counters=counters,
                          fix_sigma_m=self._fix_sigma())
-
-    def _unaugmented_stretches(self) -> dict[str, int]:
-        """Runs of consecutive standalone fixes (status 0): how many, and the longest [ms].
-        An RTK receiver that drops to a float or standalone solution for a while gives
-        such runs; their error reaches the calibration unseen by the fit."""
-        if not self._fixes:
-            return {}
-        status = np.array([f[4] for f in sorted(self._fixes)], np.int64)
-        stamps = np.array(sorted(f[0] for f in self._fixes), np.int64)
-        edges = np.diff(np.concatenate([[0], (status == 0).astype(np.int64), [0]]))
-        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
-        if starts.size == 0:
-            return {}
-        longest = int(np.max(stamps[ends] - stamps[starts])) // 1_000_000
-        return {'fixes_unaugmented_stretches': int(starts.size),
-                'fixes_unaugmented_longest_ms': longest}
 
     def _fix_sigma(self) -> tuple[float, float] | None:
         """Median declared 1-sigma of the fixes (horizontal, vertical), None if none."""
@@ -322,6 +305,7 @@ class RecordingBuilder:
             stamps = np.array(sorted(f[0] for f in self._fixes), np.int64)
             stamps, unique = np.unique(stamps, return_index=True)
             fixes = fixes[unique]
+            self.counters.update(_unaugmented_stretches(stamps, fixes[:, 4]))
             degraded = _degraded_fixes(fixes[:, 4], fixes[:, 5])
             if degraded.any():
                 self.counters['fixes_degraded_dropped'] = int(degraded.sum())
@@ -357,13 +341,19 @@ class RecordingBuilder:
             rate = np.array([o.yaw_rate_rps for o in odoms], np.float64)
             to = (o_stamps - stamps[0]) * 1e-9
             yaw_true_at = _interp_angle(t, to, yaw_true)
-            yaw = _checked_orientation(t, positions, yaw_true_at, lat, lon, frame,
+            measured = _position_velocities(t, positions)
+            # The checks differentiate over +-1 s, not the +-0.2 s the velocities use: a
+            # standalone fix (metres of noise, 10 Hz) gives ~7 m/s of noise over 0.4 s and
+            # would condemn a good twist, ~1.4 m/s over 2 s; a zero or mis-framed twist, or a
+            # wrong heading, still misses by the speed.
+            coarse = _position_velocities(t, positions[:, :2], _TWIST_CHECK_SPAN_S)
+            yaw = _checked_orientation(t, coarse, measured, yaw_true_at, lat, lon, frame,
                                        cfg.vehicle.min_heading_speed, self.counters)
             vx = np.interp(t, to, v_body[:, 0])
             vy = np.interp(t, to, v_body[:, 1])
             c, s = np.cos(yaw), np.sin(yaw)
             yaw_rate = np.interp(t, to, rate)
-            velocities = _checked_twist(t, positions, np.column_stack(
+            velocities = _checked_twist(t, positions, measured, coarse, np.column_stack(
                 [c * vx - s * vy, s * vx + c * vy]), np.column_stack([vx, vy]),
                 self.counters, yaw_rate)
         else:
@@ -441,6 +431,20 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64) -> dict[
     return out
 
 
+def _unaugmented_stretches(stamps_ns: I64, status: F64) -> dict[str, int]:
+    """Runs of consecutive standalone fixes (status 0) among fixes sorted by stamp: how
+    many, and the longest [ms]. An RTK receiver that drops to a float or standalone
+    solution for a while gives such runs; their error reaches the calibration unseen by
+    the fit."""
+    edges = np.diff(np.concatenate([[0], (status == 0).astype(np.int64), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    if starts.size == 0:
+        return {}
+    longest = int(np.max(stamps_ns[ends] - stamps_ns[starts])) // 1_000_000
+    return {'fixes_unaugmented_stretches': int(starts.size),
+            'fixes_unaugmented_longest_ms': longest}
+
+
 #: A fix declaring more than this many times the drive's median horizontal sigma (and
 #: more than _DEGRADED_SIGMA_M) is degraded.
 _DEGRADED_SIGMA_RATIO = 5.0
@@ -473,8 +477,9 @@ _ORIENTATION_TOLERANCE_RAD = math.radians(20.0)
 _ORIENTATION_SAMPLES = 10
 
 
-def _checked_orientation(t: F64, positions: F64, yaw_true: F64, lat: F64, lon: F64,
-                         frame: LocalFrame, min_speed: float, counters: Counter[str]) -> F64:
+def _checked_orientation(t: F64, coarse: F64, measured: F64, yaw_true: F64, lat: F64,
+                         lon: F64, frame: LocalFrame, min_speed: float,
+                         counters: Counter[str]) -> F64:
     """(n,) local-grid heading from the Odometry orientation where it describes the
     vehicle's travel, else from a compass-convention reading of it, else from the course
     over ground.
@@ -484,14 +489,14 @@ def _checked_orientation(t: F64, positions: F64, yaw_true: F64, lat: F64, lon: F
     identity; both were taken at their word, the twist then failed its check and was blamed
     (fourth probe: 22 cm and a 66 cm sigma). Where the vehicle moves (speed above
     ``min_speed``, over +-1 s) the course over ground is its heading, forwards; reversing is
-    rare enough for the median to ignore.
+    rare enough for the median to ignore. ``coarse`` and ``measured`` are the positions'
+    velocities over +-1 s and +-0.2 s.
     """
     yaw = frame.true_yaw_to_local(yaw_true, lat, lon)
-    velocities = _position_velocities(t, positions[:, :2], _TWIST_CHECK_SPAN_S)
-    moving = np.hypot(velocities[:, 0], velocities[:, 1]) > max(min_speed, 2.0)
+    moving = np.hypot(coarse[:, 0], coarse[:, 1]) > max(min_speed, 2.0)
     if int(moving.sum()) < _ORIENTATION_SAMPLES:
         return yaw
-    course = np.arctan2(velocities[moving, 1], velocities[moving, 0])
+    course = np.arctan2(coarse[moving, 1], coarse[moving, 0])
 
     def disagreement(heading: F64) -> float:
         return float(np.median(np.abs((heading[moving] - course + np.pi) % (2 * np.pi)
@@ -510,7 +515,7 @@ def _checked_orientation(t: F64, positions: F64, yaw_true: F64, lat: F64, lon: F
     _LOG.warning('the Odometry orientation does not describe the vehicle\'s travel (median '
                  '%.0f deg off its course over ground): the heading is taken from the course '
                  'over ground instead', math.degrees(as_given))
-    return _course_over_ground(t, _position_velocities(t, positions), min_speed)[0]
+    return _course_over_ground(t, measured, min_speed)[0]
 
 
 def _interp_angle(tq: F64, t: F64, angle: F64) -> F64:
@@ -537,8 +542,8 @@ def _position_velocities(t: F64, positions: F64, half_span_s: float = 0.2) -> F6
                             for i in range(positions.shape[1])])
 
 
-def _checked_twist(t: F64, positions: F64, twist_world: F64, twist_as_given: F64,
-                   counters: Counter[str], yaw_rate: F64) -> F64:
+def _checked_twist(t: F64, positions: F64, measured: F64, coarse: F64, twist_world: F64,
+                   twist_as_given: F64, counters: Counter[str], yaw_rate: F64) -> F64:
     """(n, 3) vehicle velocities: the Odometry twist where it describes the motion of the
     positions, else what does; a twist speed clearly off the positions' is rescaled to them
     (``_speed_scale``).
@@ -549,12 +554,9 @@ def _checked_twist(t: F64, positions: F64, twist_world: F64, twist_as_given: F64
     or it is published in the parent (ENU) frame instead of ``child_frame_id`` as REP-105
     asks. Both are told from the positions' own motion; what matches is used (the ENU
     reading as it is, else the positions' central differences) and a warning says so.
+    ``measured`` and ``coarse`` are the positions' velocities over +-0.2 s (3-D) and +-1 s
+    (horizontal, the check's: see ``_build_vehicle``).
     """
-    measured = _position_velocities(t, positions)
-    # The check differentiates over +-1 s, not the +-0.2 s the velocities use: a standalone
-    # fix (metres of noise, 10 Hz) gives ~7 m/s of noise over 0.4 s and would condemn a
-    # good twist, ~1.4 m/s over 2 s; a zero or mis-framed twist still misses by the speed.
-    coarse = _position_velocities(t, positions[:, :2], _TWIST_CHECK_SPAN_S)
     speed = np.hypot(coarse[:, 0], coarse[:, 1])
     moving = speed > _TWIST_CHECK_SPEED_MPS
     if int(moving.sum()) < _TWIST_CHECK_SAMPLES:
