@@ -218,10 +218,9 @@ _CLOCK_JUMP_S = 10.0
 
 
 def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
-    """A note when a good share of the radar frames lies outside the vehicle's pose stream
-    in time, naming the largest jump of the radar's stamps: a radar clock that jumped (a
-    lost time sync, a reboot) leaves those frames without a pose, and without this note the
-    drives they held would only be called unused."""
+    """Notes on the radar's clock: its stamps far off the poses' or jumping against the
+    recorder's clock (counters of ``recording._receipt_checks``, bags only), and radar
+    frames outside the pose stream (``_outside_poses_notes``)."""
     notes = []
     counters = recording.counters
     offset_ms = counters.get('radar_stamp_offset_ms')
@@ -239,10 +238,16 @@ def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
                      f'recording\'s clock {counters.get("radar_stamp_jump_at_ms", 0) / 1000:.0f} '
                      's after its first message (a clock that lost its sync?): the frames on '
                      'one side of the jump are paired with the wrong poses or none.')
-    return notes + _outside_poses_notes(recording, config)
+    return notes + _outside_poses_notes(recording, config, name_jump=jump_ms is None)
 
 
-def _outside_poses_notes(recording: Recording, config: CalibConfig) -> list[str]:
+def _outside_poses_notes(recording: Recording, config: CalibConfig,
+                         name_jump: bool = True) -> list[str]:
+    """A note when a good share of the radar frames lies outside the vehicle's pose stream
+    in time, with the largest gap in the radar's stamps (unless ``name_jump`` is False: the
+    recorder's clock has named the jump already): a radar clock that jumped (a lost time
+    sync, a reboot) leaves those frames without a pose, and without this note the drives
+    they held would only be called unused."""
     stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns, config.sync.time_offset)
     poses = recording.vehicle.stamps_ns
     outside = (stamps < poses[0]) | (stamps > poses[-1])
@@ -252,7 +257,7 @@ def _outside_poses_notes(recording: Recording, config: CalibConfig) -> list[str]
             f'({100 * outside.mean():.0f} %) lie outside the vehicle\'s pose stream in time '
             f'({_span(poses)}) and were not used')
     gaps = np.diff(stamps) * 1e-9
-    if gaps.size and gaps.max() > _CLOCK_JUMP_S:
+    if name_jump and gaps.size and gaps.max() > _CLOCK_JUMP_S:
         k = int(np.argmax(gaps))
         note += (f'; the radar\'s stamps jump by {gaps[k]:.1f} s after '
                  f'{stamps[k] * 1e-9:.3f} s (a clock that lost its sync?)')
@@ -278,8 +283,7 @@ def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
     if recording.counters.get('odometry_orientation_replaced'):
         notes.append('The Odometry orientation did not describe the vehicle\'s travel (identity, '
                      'or another frame\'s): the heading was taken from the course over '
-                     'ground. '
-                     'Check the driver\'s orientation.')
+                     'ground. Check the driver\'s orientation.')
     if not recording.has_elevation:
         notes.append('The radar reports no elevation (z = 0 for every target: a 2-D radar): '
                      'roll, pitch and altitude cannot be measured from its targets; the '

@@ -165,6 +165,13 @@ def test_radar_frames_outside_the_pose_stream_are_noted_with_the_jump() -> None:
     notes = _clock_notes(jumped, CalibConfig())
     assert len(notes) == 1 and '75 of the 150 radar frames (50 %)' in notes[0], notes
     assert 'jump by 3600.1 s after' in notes[0]
+    # the recorder's clock named the jump already: said once
+    seen = dataclasses.replace(jumped, counters={**jumped.counters,
+                                                 'radar_stamp_jump_ms': 3600000,
+                                                 'radar_stamp_jump_at_ms': 5000})
+    notes = _clock_notes(seen, CalibConfig())
+    assert len(notes) == 2 and sum('jump by' in n for n in notes) == 1, notes
+    assert '75 of the 150 radar frames' in notes[1]
 
 
 def test_the_recorders_clock_names_a_radar_offset_or_jump() -> None:
