@@ -16,8 +16,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from numpy.linalg import LinAlgError
-
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import CalibrationError, exit_code
 
@@ -210,12 +208,9 @@ def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
 
 def _warn_frame_id(bag: str, config: CalibConfig) -> None:
     """Warn when the radar topic's header frame_id is not ``radar.frame_id``."""
-    from radar_calib_ros.io.bag import radar_frame_ids
+    from radar_calib_ros.io.bag import configured_radar_frame_id
     from radar_calib_ros.io.messages import frame_id_mismatch
-    frames = radar_frame_ids(bag)
-    topic = config.radar_topic if config.radar_topic in frames else (
-        next(iter(frames)) if len(frames) == 1 else None)
-    mismatch = frame_id_mismatch(frames.get(topic, ''), config.radar.frame_id) if topic else None
+    mismatch = frame_id_mismatch(configured_radar_frame_id(bag, config), config.radar.frame_id)
     if mismatch:
         print(f'warning: {mismatch}', file=sys.stderr)
 
@@ -444,7 +439,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     except KeyboardInterrupt:
         print('error: interrupted', file=sys.stderr)
         return 130
-    except (ArithmeticError, ValueError, LinAlgError) as err:
+    except (ArithmeticError, ValueError) as err:  # numpy's LinAlgError is a ValueError
         # A numerical failure on data nothing above foresaw (a clock jump once made the
         # tracking filter's covariance indefinite): the data cannot be calibrated as they
         # are; say where, not a bare traceback (-v shows it).

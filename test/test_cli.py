@@ -143,6 +143,12 @@ def test_a_radar_frame_id_unlike_the_parameter_is_warned(
     err = capsys.readouterr().err
     assert err.startswith("warning: the radar's messages are in frame 'radar_front_link'")
     assert 'set radar.frame_id: radar_front_link' in err
+    # the topic named without its leading '/', as select_topics matches it
+    bare = config.radar_topic.lstrip('/')
+    monkeypatch.setattr(bag_io, 'radar_frame_ids',
+                        lambda path: {bare: 'radar_front_link', '/other/points': 'radar'})
+    cli._warn_frame_id('some.bag', config)
+    assert "frame 'radar_front_link'" in capsys.readouterr().err
     # the same frame (a leading slash aside), or a header without one: nothing to say
     for same in ('/radar', 'radar', ''):
         monkeypatch.setattr(bag_io, 'radar_frame_ids',

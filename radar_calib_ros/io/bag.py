@@ -35,8 +35,8 @@ if TYPE_CHECKING:
 
     from radar_calib_ros.config import CalibConfig
 
-__all__ = ['RADAR_TYPES', 'ROLE_TYPES', 'radar_frame_ids', 'radar_topics', 'read_recording',
-           'select_topics', 'write_bag']
+__all__ = ['RADAR_TYPES', 'ROLE_TYPES', 'configured_radar_frame_id', 'radar_frame_ids',
+           'radar_topics', 'read_recording', 'select_topics', 'write_bag']
 
 #: Message types accepted per role.
 RADAR_TYPES = (msgs.POINTCLOUD2, msgs.RADARSCAN)
@@ -209,6 +209,23 @@ def radar_frame_ids(path: str | Path) -> dict[str, str]:
                 frames[connection.topic] = str(msg.header.frame_id)
                 break
     return dict(sorted(frames.items()))
+
+
+def configured_radar_frame_id(path: str | Path, config: CalibConfig) -> str:
+    """The header ``frame_id`` of the radar topic the parameters pick (matched as
+    :func:`select_topics` does, with or without the leading '/', else the bag's only radar
+    topic); '' when none is picked or the header names none.
+
+    Raises
+    ------
+    BagReadError
+        The bag cannot be opened or read.
+    """
+    frames = radar_frame_ids(path)
+    named = [t for t in frames if _same_topic(t, config.radar_topic)]
+    if named:
+        return frames[named[0]]
+    return next(iter(frames.values())) if len(frames) == 1 else ''
 
 
 def read_recording(path: str | Path, config: CalibConfig, *,
