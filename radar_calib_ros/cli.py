@@ -257,7 +257,8 @@ def cmd_simulate(args: argparse.Namespace, out: TextIO) -> int:
     start = time.perf_counter()
     summary = simulate(args.out_bag, seed=args.seed, duration_s=args.duration,
                        storage=args.storage, scenario=args.scenario,
-                       scatter_model=args.scatter_model, mount_seed=args.mount_seed)
+                       scatter_model=args.scatter_model, mount_seed=args.mount_seed,
+                       max_unambiguous_velocity_mps=args.unambiguous_velocity)
     mount = '' if args.mount_seed is None else f', mount seed {args.mount_seed}'
     print(f'simulated {args.scenario!r} ({args.duration:.0f} s, seed {args.seed}{mount}) into '
           f'{args.out_bag} in {time.perf_counter() - start:.1f} s: {summary.n_frames} radar '
@@ -409,6 +410,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="moves the radar mount a little from the scenario's (default: as "
                         'described); --seed varies only the drive, traffic and noise, so '
                         'drives with one scenario and mount seed see the same radar')
+    p.add_argument('--unambiguous-velocity', type=float, default=0.0, metavar='MPS',
+                   help='fold radial velocities beyond +-MPS m/s, as a radar tuned for range '
+                        'does (default: 0, no folding)')
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser('demo',

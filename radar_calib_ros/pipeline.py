@@ -16,7 +16,7 @@ import numpy as np
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import associate, cluster, ground_plane, hypotheses, moving, polygon
-from radar_calib_ros.core import quality, refine, track
+from radar_calib_ros.core import quality, refine, track, velocity_folding
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.result import calibration_dict, quality_dict
@@ -268,11 +268,12 @@ def _span(stamps_ns: np.ndarray) -> str:
     return f'{stamps_ns[0] * 1e-9:.3f}-{stamps_ns[-1] * 1e-9:.3f} s'
 
 
-def _data_notes(recording: Recording, flip_note: str | None) -> list[str]:
+def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
-    source: a flipped radial-velocity sign, an Odometry twist that did not describe the
-    vehicle's motion (or its speed), a radar without elevation, standalone GNSS fixes."""
-    notes = [flip_note] if flip_note else []
+    source: ``corrections`` made on the way (a flipped radial-velocity sign, folded
+    velocities), an Odometry twist that did not describe the vehicle's motion (or its
+    speed), a radar without elevation, standalone GNSS fixes."""
+    notes = list(corrections)
     if recording.counters.get('odometry_twist_replaced'):
         notes.append('The Odometry twist did not describe the vehicle\'s motion (zero, or in '
                      'another frame): the velocity was taken from the positions. Check the '
@@ -374,6 +375,18 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
                      f'{n_same} as a range rate. They were flipped; set radar.velocity_sign '
                      f'to {-config.radar.velocity_sign:g} to say so.')
         _LOG.warning('%s', flip_note)
+    corrections = [flip_note] if sign < 0 else []
+    folding = velocity_folding.detect_folding(current, recording, tracked.target_index, config)
+    if folding is not None:
+        recording, folding = velocity_folding.unfold_radial_velocities(
+            recording, current, tracked.target_index, folding, config)
+        corrections.append(
+            f'The radar\'s radial velocities fold over at +-{folding.period_mps / 2:.1f} m/s '
+            f'(an unambiguous interval {folding.period_mps:.1f} m/s wide): near the vehicle '
+            f'{folding.n_folded} of {folding.n_near} targets were off its motion by that '
+            f'width. {folding.n_unfolded} were unfolded by the vehicle\'s known motion; other '
+            'road users\' stay folded.')
+        _LOG.warning('%s', corrections[-1])
     refinement: Refinement | None = None
     if config.refine.final:
         with stage('refine'):
@@ -387,8 +400,9 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
                                         config)
         report.extra['vehicle_detection_ratio'] = detection
         report.extra['radial_velocity_sign'] = sign * config.radar.velocity_sign
-        notes = (_data_notes(recording, flip_note if sign < 0 else None)
-                 + _clock_notes(recording, config))
+        if folding is not None:
+            report.extra['radial_velocity_fold_period_mps'] = folding.period_mps
+        notes = _data_notes(recording, corrections) + _clock_notes(recording, config)
         if notes:
             # only when there are some: an empty list in result.yaml has no parameter type,
             # and a node declaring its parameters from the file would refuse it

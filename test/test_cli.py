@@ -119,6 +119,24 @@ def test_demo_end_to_end_against_ground_truth(tmp_path: Path,
     assert flipped['horizontal_m'] < 0.10 and flipped['rotation_deg'] < 0.3
 
 
+def test_folded_radial_velocities_are_unfolded_and_said(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A radar that folds radial velocities beyond +-5 m/s (half the vehicle's targets):
+    the final fit used to run off by metres and ten degrees and exit 1."""
+    from radar_calib_ros.groundtruth import calibration_errors
+    from radar_calib_ros.result import load_result
+    from radar_calib_ros.sim import simulate
+    bag = tmp_path / 'folded'
+    summary = simulate(bag, seed=3, duration_s=150.0, max_unambiguous_velocity_mps=5.0)
+    assert summary.truth['max_unambiguous_velocity_mps'] == 5.0
+    code, out, err = _run(['calibrate', str(bag), '--params', str(bag / 'params.yaml'),
+                           '--output', str(tmp_path / 'r.yaml')], capsys)
+    assert code == 0, err
+    assert 'fold over at +-5.0 m/s' in out + err
+    errors = calibration_errors(load_result(tmp_path / 'r.yaml'), summary.truth)
+    assert errors['horizontal_m'] < 0.10 and errors['rotation_deg'] < 0.3
+
+
 def test_vehicle_never_in_view_exits_1_without_result(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from radar_calib_ros.sim import simulate

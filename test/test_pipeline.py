@@ -145,11 +145,11 @@ def test_a_2d_radar_is_named_in_the_advice() -> None:
 
     flat = _recording(0.1)
     assert not flat.has_elevation
-    assert any('no elevation' in n for n in _data_notes(flat, None))
+    assert any('no elevation' in n for n in _data_notes(flat, []))
     targets = dataclasses.replace(flat.targets, positions_m=flat.targets.positions_m
                                   + np.array([0.0, 0.0, -1.5]))
     tilted = dataclasses.replace(flat, targets=targets)
-    assert tilted.has_elevation and not _data_notes(tilted, None)
+    assert tilted.has_elevation and not _data_notes(tilted, [])
 
 
 def test_radar_frames_outside_the_pose_stream_are_noted_with_the_jump() -> None:

@@ -81,7 +81,7 @@ def test_an_odometry_orientation_unlike_the_travel_is_read_or_replaced(
     inner = (t > 1.0) & (t < 19.0)
     error = np.degrees(np.abs(_wrap(rec.vehicle.yaw_rad - (angle + np.pi / 2))))[inner]
     assert error.max() < (0.1 if convention == 'compass' else 2.0), error.max()
-    assert any('Odometry orientation' in n for n in _data_notes(rec, None))
+    assert any('Odometry orientation' in n for n in _data_notes(rec, []))
 
 
 def test_interpolation_at_15mps_hits_true_pose() -> None:
@@ -307,7 +307,7 @@ def test_odometry_twist_checked_against_the_positions(twist: str,
     assert ('Odometry twist' in caplog.text) == (twist != 'body')
     # and the calibration's advice names it for the user to fix at the source
     from radar_calib_ros.pipeline import _data_notes
-    notes = [n for n in _data_notes(rec, None) if 'twist' in n]
+    notes = [n for n in _data_notes(rec, []) if 'twist' in n]
     assert len(notes) == (twist != 'body') and all('REP-105' in n for n in notes)
 
 
@@ -352,7 +352,7 @@ def test_fix_status_and_covariance_are_kept_and_summarised() -> None:
     fixes = [s for s in builder.samples() if isinstance(s, FixSample)]
     assert [f.status for f in fixes] == [0] * 8 + [2] * 2
     assert fixes[0].position_sigma_m == pytest.approx((1.5, 2.5))
-    notes = [n for n in _data_notes(rec, None) if 'GNSS' in n]
+    notes = [n for n in _data_notes(rec, []) if 'GNSS' in n]
     assert len(notes) == 1 and '80 % of the vehicle' in notes[0] and '1.50 m' in notes[0]
 
 
@@ -381,7 +381,7 @@ def test_rtk_lost_for_stretches_is_named_with_their_count_and_length() -> None:
     rec = _straight_fixes([0 if k in standalone else 2 for k in range(100)]).build()
     assert rec.counters['fixes_unaugmented_stretches'] == 2
     assert rec.counters['fixes_unaugmented_longest_ms'] == 9000
-    notes = [n for n in _data_notes(rec, None) if 'RTK' in n]
+    notes = [n for n in _data_notes(rec, []) if 'RTK' in n]
     assert len(notes) == 1 and '15 of the vehicle\'s 100 fixes' in notes[0], notes
     assert '2 stretches, the longest 9 s' in notes[0]
     # ... and their poses are left out: the track has a gap where they were
@@ -409,7 +409,7 @@ def test_an_rtk_drive_gets_no_gnss_note() -> None:
     builder, _, _ = circle_builder()
     rec = builder.build()
     assert 'fixes_unaugmented_stretches' not in rec.counters
-    assert not [n for n in _data_notes(rec, None) if 'RTK' in n or 'GNSS' in n]
+    assert not [n for n in _data_notes(rec, []) if 'RTK' in n or 'GNSS' in n]
 
 
 def test_messages_sharing_a_header_stamp_are_one_scan() -> None:
@@ -433,7 +433,7 @@ def test_messages_sharing_a_header_stamp_are_one_scan() -> None:
     assert rec.counters['radar_messages_merged'] == 12
     assert rec.counters['radar_frames'] == 16
     assert any('12 radar messages shared their header stamp' in n
-               for n in _data_notes(rec, None))
+               for n in _data_notes(rec, []))
 
 
 @pytest.mark.parametrize('scale, expected', [(1.0, None), (1.002, None), (1.004, -4),
@@ -461,7 +461,7 @@ def test_an_odometry_speed_scale_error_is_rescaled_to_the_fixes(
     rec = builder.build()
     assert rec.counters.get('odometry_speed_scale_permille') == expected
     from radar_calib_ros.pipeline import _data_notes
-    notes = [n for n in _data_notes(rec, None) if 'rescaled' in n]
+    notes = [n for n in _data_notes(rec, []) if 'rescaled' in n]
     assert len(notes) == (expected is not None)
     assert all(f'{-expected / 10:.1f} % off' in n for n in notes)
     inner = (t > 2.0) & (t < 58.0)

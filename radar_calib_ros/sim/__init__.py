@@ -94,7 +94,8 @@ class SimulationSummary:
 def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
              storage: str = 'mcap', scenario: str = 'baseline',
              scatter_model: str | None = None,
-             mount_seed: int | None = None) -> SimulationSummary:
+             mount_seed: int | None = None,
+             max_unambiguous_velocity_mps: float = 0.0) -> SimulationSummary:
     """Simulate a calibration drive past a roadside radar and write it as a rosbag2 bag.
 
     Parameters
@@ -122,6 +123,10 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         static scene (buildings, poles, kerbs, parked cars) belongs to the scenario alone.
         So recordings with different seeds and the same scenario and mount seed are drives
         past the same radar: one calibrates, another evaluates.
+    max_unambiguous_velocity_mps : float, default=0.0
+        A radar whose radial velocities fold beyond +-this speed (0: none): the waveform of
+        a radar tuned for range resolves Doppler only within an interval, and a car faster
+        than its half-width along the line of sight is reported wrapped into it.
 
     Returns
     -------
@@ -143,6 +148,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         raise ConfigError(f'duration {duration_s} s is outside [10, 3600] s')
     if not isinstance(seed, int) or seed < 0:
         raise ConfigError(f'seed must be a non-negative integer, got {seed!r}')
+    if not (max_unambiguous_velocity_mps == 0.0 or 2.0 <= max_unambiguous_velocity_mps <= 200.0):
+        raise ConfigError(f'unambiguous velocity {max_unambiguous_velocity_mps} m/s is neither '
+                          '0 (no folding) nor within [2, 200] m/s')
     if mount_seed is not None and (not isinstance(mount_seed, int) or mount_seed < 0):
         raise ConfigError(f'mount seed must be a non-negative integer, got {mount_seed!r}')
     out = Path(out_dir)
@@ -178,7 +186,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         list(SCENARIOS).index(spec.name))
 
     # --- radars -------------------------------------------------------------------------
-    radar_model = RadarModel()
+    radar_model = RadarModel(max_unambiguous_velocity_mps=float(max_unambiguous_velocity_mps))
     multi = len(mounts) > 1
     runs = [_simulate_one_radar(
         spec, mount, scene, log, templates, radar_model, duration, epoch_ns, *streams_k,
@@ -213,6 +221,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
                        run.ground_z, passes, log, templates.skin_weight[0], gnss,
                        run.times.size, run.targets, epoch_ns, n_messages)
         truth['mount_seed'] = mount_seed
+        truth['max_unambiguous_velocity_mps'] = radar_model.max_unambiguous_velocity_mps
         if multi:
             truth.update(radar_frame=run.frame_id, radar_topic=run.topic)
         truths[run.frame_id] = truth

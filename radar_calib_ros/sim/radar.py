@@ -73,6 +73,10 @@ class RadarModel:
     false_alarms_per_frame: float = 4.0
     road_ghost_probability: float = 0.5
     wall_ghost_probability: float = 0.6
+    #: the largest radial speed the waveform resolves; beyond it the Doppler folds over
+    #: (v -> v - 2V round(v / 2V)), as a radar tuned for range rather than speed does.
+    #: 0 = no folding [m/s]
+    max_unambiguous_velocity_mps: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -328,6 +332,9 @@ def _observe_batch(log: TrafficLog, templates: ScatterTemplates, scene: StaticSc
                       + model.sigma_velocity_floor_mps ** 2
                       + (moves * model.sigma_velocity_mps * grow) ** 2)
     v_m = cat['v'] + rng.normal(0.0, 1.0, n) * sigma_v
+    if model.max_unambiguous_velocity_mps > 0.0:
+        period = 2.0 * model.max_unambiguous_velocity_mps
+        v_m = v_m - period * np.round(v_m / period)
     p_m = np.column_stack([r_m * np.cos(el_m) * np.cos(az_m),
                            r_m * np.cos(el_m) * np.sin(az_m), r_m * np.sin(el_m)])
     rcs_m = cat['rcs'] + rng.normal(0.0, 1.0, n)
