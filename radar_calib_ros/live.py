@@ -149,7 +149,8 @@ class LiveCalibrator:
     log : LogFn
         Where log lines go; the node passes its rclpy logger.
     now_ns : callable() -> int, default=time.time_ns
-        Clock for the stamp of a new calibration (the node passes its ROS clock).
+        Clock for the stamp of a new calibration and for the receipt of each message (the
+        node passes its ROS clock: replaying a bag with use_sim_time, the bag's record time).
     monotonic : callable() -> float, default=time.monotonic
         Clock for throttling warnings and for timeouts [s].
     run : callable(Recording, CalibConfig, progress=...) -> CalibrationResult, optional
@@ -357,6 +358,10 @@ class LiveCalibrator:
         return released
 
     def _add(self, stream: str, stamp_ns: int, sample: Sample) -> None:
+        # The node's clock is one clock for every stream, as a recorder's is: it shows radar
+        # stamps seconds off the poses' or jumping (``recording._receipt_checks``); a
+        # sample held to confirm a jump counts as received when released, a moment late.
+        self._builder.note_receipt(stream, stamp_ns, self._now_ns())
         if isinstance(sample, RadarFrame):
             self._builder.add_radar_frame(sample)
         elif isinstance(sample, FixSample):

@@ -215,6 +215,9 @@ def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:
 #: stamps worth naming [s].
 _OUTSIDE_POSES_SHARE = 0.05
 _CLOCK_JUMP_S = 10.0
+#: Radar stamps off the poses' as received, after sync.time_offset, worth a note [s]
+#: (transport latencies are milliseconds to a few hundred).
+_RECEIPT_NOTE_S = 1.0
 
 
 def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
@@ -225,14 +228,17 @@ def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
     counters = recording.counters
     offset_ms = counters.get('radar_stamp_offset_ms')
     jump_ms = counters.get('radar_stamp_jump_ms')
-    # with a jump, the offset is a blend of before and after: the jump is the news
-    if offset_ms is not None and jump_ms is None:
+    # with a jump, the offset is a blend of before and after: the jump is the news; an
+    # offset that sync.time_offset already takes out is no news either
+    left_s = (offset_ms or 0) / 1000 + config.sync.time_offset
+    if offset_ms is not None and jump_ms is None and abs(left_s) > _RECEIPT_NOTE_S:
+        setting = (f'; sync.time_offset ({config.sync.time_offset:g} s) leaves {left_s:+.1f} s'
+                   if config.sync.time_offset else '')
         notes.append(f'As the recording received them, the radar\'s header stamps are '
                      f'{abs(offset_ms) / 1000:.1f} s {"ahead of" if offset_ms > 0 else "behind"} '
-                     f'the vehicle\'s (sync.time_offset is {config.sync.time_offset:g} s): if '
-                     'their clocks differ (GPS, UTC or TAI time, or no time sync), set '
-                     'sync.time_offset to about '
-                     f'{config.sync.time_offset - offset_ms / 1000:.1f}.')
+                     f'the vehicle\'s{setting}: if their clocks differ (GPS, UTC or TAI time, '
+                     'or no time sync), set sync.time_offset to about '
+                     f'{-offset_ms / 1000:.1f}.')
     if jump_ms is not None:
         notes.append(f'The radar\'s header stamps jump by {jump_ms / 1000:+.1f} s against the '
                      f'recording\'s clock {counters.get("radar_stamp_jump_at_ms", 0) / 1000:.0f} '
@@ -339,8 +345,22 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
     ------
     InsufficientDataError
         The data cannot be calibrated (vehicle never seen, too few passes, hypotheses that
-        do not agree); the message says which and with what numbers.
+        do not agree); the message says which and with what numbers, and what the clocks
+        showed (radar stamps seconds off the poses' as received, a jump, frames outside
+        the poses): a failure is where that matters most.
     """
+    try:
+        return _run_calibration(recording, config, progress)
+    except InsufficientDataError as err:
+        notes = _clock_notes(recording, config)
+        if type(err) is not InsufficientDataError or not notes:
+            raise
+        raise InsufficientDataError(err.stage, ' '.join((err.reason.rstrip('.') + '.',
+                                                         *notes))) from err
+
+
+def _run_calibration(recording: Recording, config: CalibConfig,
+                     progress: ProgressFn | None) -> CalibrationResult:
     stage = _StageClock(progress)
     targets = recording.targets
     if len(targets) == 0:

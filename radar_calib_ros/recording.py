@@ -97,6 +97,7 @@ class RecordingBuilder:
         self._radar_lag: list[int] = []
         self._radar_received: list[int] = []
         self._pose_lag: list[int] = []
+        self._pose_received: list[int] = []
         # kept current on every append so that the node can check its memory bound per message
         self._nbytes = 0
 
@@ -126,6 +127,7 @@ class RecordingBuilder:
             self._radar_received.append(int(received_ns))
         else:
             self._pose_lag.append(int(received_ns) - int(stamp_ns))
+            self._pose_received.append(int(received_ns))
 
     def add_fix(self, fix: FixSample) -> bool:
         """Append one NavSatFix; returns False (and counts why) when it is dropped."""
@@ -170,6 +172,11 @@ class RecordingBuilder:
         self._fixes = [f for f in self._fixes if f[0] >= stamp_ns]
         n_odom = len(self._odoms)
         self._odoms = [o for o in self._odoms if o[0] >= stamp_ns]
+        # receipts go with their samples (received - lag is the header stamp)
+        self._radar_lag, self._radar_received = _receipts_from(
+            stamp_ns, self._radar_lag, self._radar_received)
+        self._pose_lag, self._pose_received = _receipts_from(
+            stamp_ns, self._pose_lag, self._pose_received)
         self._nbytes = self._count_nbytes()
         return dropped + n_fix - len(self._fixes) + n_odom - len(self._odoms)
 
@@ -222,6 +229,7 @@ class RecordingBuilder:
         copy._odoms = list(self._odoms)
         copy._radar_lag, copy._pose_lag = list(self._radar_lag), list(self._pose_lag)
         copy._radar_received = list(self._radar_received)
+        copy._pose_received = list(self._pose_received)
         copy.counters = Counter(self.counters)
         copy._nbytes = self._nbytes
         return copy
@@ -398,6 +406,13 @@ def interpolate_poses(vehicle: VehicleTrack, stamps_ns: I64, max_gap_s: float) -
     return PoseSamples(positions, yaw, velocities, yaw_rate, valid)
 
 
+def _receipts_from(stamp_ns: int, lags: list[int], received: list[int]
+                   ) -> tuple[list[int], list[int]]:
+    """The receipts (lag, received) of the messages stamped at or after ``stamp_ns``."""
+    keep = [i for i, (lag, rec) in enumerate(zip(lags, received)) if rec - lag >= stamp_ns]
+    return [lags[i] for i in keep], [received[i] for i in keep]
+
+
 #: Offset between the radar's and the poses' header stamps, as one recorder received them,
 #: and a step of the radar's, worth naming [s] (transport latencies are milliseconds to a
 #: few hundred); frames over which a step must persist.
@@ -407,8 +422,8 @@ _RECEIPT_WINDOW = 15
 
 def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64) -> dict[str, int]:
     """Counters from the receipt lags (received - header stamp, ns, in received order): the
-    radar stamps' offset from the poses' ('radar_stamp_offset_ms': radar minus pose, when
-    over ``_RECEIPT_OFFSET_S``), and the largest lasting step of the radar's lag
+    radar stamps' offset from the poses' ('radar_stamp_offset_ms': radar minus pose; the
+    notes judge it against ``sync.time_offset``), and the largest lasting step of the lag
     ('radar_stamp_jump_ms', 'radar_stamp_jump_at_ms' after the first radar message).
 
     Why: a radar on GPS time and a vehicle on UTC are 18 s apart, a radar clock that loses
@@ -418,8 +433,7 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64) -> dict[
     if radar_lag.size < _RECEIPT_WINDOW or pose_lag.size < _RECEIPT_WINDOW:
         return out
     offset_ns = float(np.median(pose_lag) - np.median(radar_lag))
-    if abs(offset_ns) > _RECEIPT_OFFSET_S * 1e9:
-        out['radar_stamp_offset_ms'] = int(round(offset_ns / 1e6))
+    out['radar_stamp_offset_ms'] = int(round(offset_ns / 1e6))
     smooth = ndimage.median_filter(radar_lag.astype(np.float64), size=_RECEIPT_WINDOW,
                                    mode='nearest')
     step = np.diff(smooth)

@@ -189,6 +189,29 @@ def test_buffer_bounded_by_max_duration(tmp_path: Path, store: Any) -> None:
     consistent(live)
 
 
+def test_the_nodes_clock_names_radar_stamps_off_the_poses(tmp_path: Path, store: Any) -> None:
+    """The node's clock is one for every stream, as a recorder's is: a radar whose stamps
+    run 7 s ahead of the vehicle's shows it in the recording the node builds, and the
+    receipts leave with the samples when the buffer drops its oldest."""
+    received = [T0_NS]
+    live = LiveCalibrator(CalibConfig.from_mapping({
+        'output.path': str(tmp_path / 'result.yaml'), 'buffer.max_duration': 20.0}),
+        log=LogRecorder(), run=fake_run(), monotonic=FakeClock(), now_ns=lambda: received[0])
+    for i in range(30 * 50):                # 30 s: fixes and odometry at 50 Hz
+        received[0] = T0_NS + i * 20_000_000
+        live.on_navsat(fix_msg(store, received[0], i))
+        live.on_odometry(odom_msg(store, received[0]))
+        if i % 3 == 0:                      # the radar at about 17 Hz, stamped 7 s ahead
+            live.on_radar(radar_msg(store, received[0] + 7 * 10**9, 5, seed=i))
+    builder = live._builder  # noqa: SLF001 - white-box check
+    frames, fixes, odoms = builder.sample_counts()
+    assert frames < 500 and len(builder._radar_lag) == len(builder._radar_received) == frames
+    assert len(builder._pose_lag) == len(builder._pose_received) == fixes + odoms
+    recording = builder.snapshot().build()
+    assert recording.counters['radar_stamp_offset_ms'] == pytest.approx(7000, abs=10)
+    consistent(live)
+
+
 def test_buffer_bounded_by_memory(tmp_path: Path, store: Any) -> None:
     live, log = make_live(tmp_path, **{'buffer.max_memory_mb': 16.0})
     message = radar_msg(store, T0_NS, 2000)

@@ -182,8 +182,33 @@ def test_the_recorders_clock_names_a_radar_offset_or_jump() -> None:
     notes = _clock_notes(ahead, CalibConfig())
     assert len(notes) == 1 and '18.0 s ahead of the vehicle' in notes[0]
     assert 'set sync.time_offset to about -18.0' in notes[0]
+    # a sync.time_offset that takes it out silences it; one that misses is told what's left
+    taken_out = CalibConfig.from_mapping({'sync': {'time_offset': -18.0}})
+    # (this recording's frames, shifted so, leave the poses: that note is another's)
+    assert not [n for n in _clock_notes(ahead, taken_out) if 'received' in n]
+    missed = CalibConfig.from_mapping({'sync': {'time_offset': -9.99}})
+    notes = [n for n in _clock_notes(ahead, missed) if 'received' in n]
+    assert len(notes) == 1 and 'leaves +8.0 s' in notes[0] and 'about -18.0' in notes[0]
+    in_sync = dataclasses.replace(rec, counters={**rec.counters, 'radar_stamp_offset_ms': 40})
+    assert _clock_notes(in_sync, CalibConfig()) == []
     jumped = dataclasses.replace(rec, counters={**rec.counters, 'radar_stamp_offset_ms': 2500,
                                                 'radar_stamp_jump_ms': 5000,
                                                 'radar_stamp_jump_at_ms': 209000})
     notes = _clock_notes(jumped, CalibConfig())
     assert len(notes) == 1 and 'jump by +5.0 s' in notes[0] and '209 s after' in notes[0]
+
+
+def test_a_failure_says_what_the_clocks_showed() -> None:
+    """Where the radar's stamps are seconds off the poses', the calibration fails (nothing
+    pairs with the vehicle): the failure, not only a result, must say what to set."""
+    from radar_calib_ros.pipeline import run_calibration
+
+    rec = _recording(0.1)
+    ahead = dataclasses.replace(rec, counters={**rec.counters, 'radar_stamp_offset_ms': 7000})
+    with pytest.raises(InsufficientDataError, match=r'\. As the recording received them, the '
+                       r"radar's header stamps are 7.0 s ahead .* about -7.0") as failure:
+        run_calibration(ahead, CalibConfig())
+    assert failure.type is InsufficientDataError
+    with pytest.raises(InsufficientDataError) as plain:
+        run_calibration(rec, CalibConfig())
+    assert 'received' not in str(plain.value)

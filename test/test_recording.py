@@ -490,4 +490,5 @@ def test_receipt_times_show_a_radar_clock_offset_and_a_jump() -> None:
     assert out['radar_stamp_jump_at_ms'] == pytest.approx(300 * 66.67, abs=200)
     paused = received.copy()
     paused[300:] += 60 * 10**9         # nothing for a minute: stamps and receipt move together
-    assert _receipt_checks(latency, paused, pose_lag) == {}
+    calm = _receipt_checks(latency, paused, pose_lag)
+    assert 'radar_stamp_jump_ms' not in calm and abs(calm['radar_stamp_offset_ms']) < 100
