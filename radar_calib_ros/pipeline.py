@@ -293,9 +293,10 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      'ground. Check the driver\'s orientation.')
     if not recording.has_elevation:
         notes.append('The radar reports no elevation (z = 0 for every target: a 2-D radar): '
-                     'roll, pitch and altitude cannot be measured from its targets; the '
-                     'result carries them from the fit with an uncertainty of degrees and a '
-                     'metre; measure them at the mount.')
+                     'its roll and pitch cannot be measured from its targets and are reported '
+                     'level, with an uncertainty of degrees that also widens the position\'s; '
+                     'its altitude comes only from the radial velocities (decimetres). '
+                     'Measure the tilt at the mount.')
     fixes = recording.counters.get('fixes', 0)
     standalone = recording.counters.get('fixes_unaugmented', 0)
     if fixes and standalone > 0.5 * fixes:

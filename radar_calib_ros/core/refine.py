@@ -81,9 +81,20 @@ _LOG = logging.getLogger(__name__)
 #: bounded influence while the Gaussian core keeps most of its efficiency.
 _LOSS_SCALE = 1.0
 #: What a 2-D radar leaves of roll/pitch and altitude (1 sigma): a roadside radar's mount is
-#: within a few degrees of level and its height known to about a metre, nothing better.
+#: within a few degrees of level, nothing better; its altitude comes from the dip of the
+#: radial velocities' line of sight, which the reflection heights and the held tilt blur
+#: (a fifth probe's 2-D radars: 23-39 cm below the truth, with 17 cm from the heights).
 _PLANAR_TILT_SIGMA_DEG = 5.0
-_PLANAR_HEIGHT_SIGMA_M = 1.0
+_PLANAR_HEIGHT_SIGMA_M = 0.3
+#: Prior sigma that holds a 2-D radar's roll and pitch at the start [rad], and the largest
+#: sine of the dip of its line of sight out of its plane (a target nearer than its height).
+_PLANAR_HOLD_RAD = 1e-5
+_PLANAR_MAX_SIN = 0.98
+#: Tilt by which a 2-D radar's held roll and pitch are moved to see what they carry [deg].
+_PLANAR_PROBE_DEG = 2.0
+#: A 2-D radar's altitude starts at the vehicle's (stage 6 pairs its plane with the
+#: vehicle), metres below the pole's: its prior around that start must not hold it [m].
+_PLANAR_ALTITUDE_SIGMA_M = 30.0
 #: Fewest targets a refinement is attempted with.
 _MIN_TARGETS = 30
 #: Fewest targets of a pass (see ``_in_passes``).
@@ -828,12 +839,33 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
                                       None).extrinsics.translation_m
             except InsufficientDataError:
                 alternative = None
-        return _refine(initial, recording, tracked, selection, config, alternative)
+        tilted: list[F64] = []
+        if not recording.has_elevation:
+            # A 2-D radar's roll and pitch are held level (nothing measures them), yet they
+            # still move its position: a tilted plane maps azimuth to bearing differently
+            # off the boresight (a fifth probe's radar pitched 7 deg: 45 cm along the
+            # boresight, reported at 18). The fit is run again with each held at a tilt, and
+            # what it moves joins the covariance for their reported uncertainty.
+            single = dataclasses.replace(config, refine=dataclasses.replace(
+                config.refine, model_check=False))
+            for axis in np.eye(3)[:2]:
+                turn = Rotation.from_rotvec(math.radians(_PLANAR_PROBE_DEG) * axis)
+                start = Extrinsics(np.asarray(initial.rotation, float) @ turn.as_matrix(),
+                                   np.asarray(initial.translation_m, float),
+                                   float(initial.time_offset_s))
+                try:
+                    tilted.append(_refine(start, recording, tracked, selection, single,
+                                          None).extrinsics.translation_m)
+                except InsufficientDataError:
+                    continue
+        return _refine(initial, recording, tracked, selection, config, alternative,
+                       tilted)
 
 
 def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             selection: HypothesisSelection, config: CalibConfig,
-            alternative_translation: F64 | None) -> Refinement:
+            alternative_translation: F64 | None,
+            tilted_translations: list[F64] | None = None) -> Refinement:
     cfg = config.refine
     t0_ns = int(recording.vehicle.stamps_ns[0])
     poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap)
@@ -878,6 +910,15 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     x_lo, x_hi, _, _ = box_limits(config.vehicle)
     centre_x = 0.5 * (x_lo + x_hi)
     prior_mean, prior_sigma = _priors(config, harmonics, estimate_tau)
+    if not recording.has_elevation:
+        # A 2-D radar (z = 0 for every target) measures no height, so its targets hold no
+        # roll or pitch: left free, the fit tilts the radar's plane until it passes through
+        # the car (a fifth probe's six such recordings ran 8-22 deg off and were refused).
+        # They stay where the paper's stages put them (level), and the covariance says how
+        # little that is worth. The altitude is left to the radial velocities, which the
+        # line of sight's dip shrinks (see ``_slant_to_level``).
+        prior_mean[:2], prior_sigma[:2] = 0.0, _PLANAR_HOLD_RAD
+        prior_sigma[5] = _PLANAR_ALTITUDE_SIGMA_M
     start = est
     profile = np.nan_to_num(prior_mean[(7 if estimate_tau else 6):])
     scatter = np.full(3, cfg.position_sigma_m)
@@ -942,7 +983,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # and picks the same targets again when the gate barely changes.
         stride = max(1, index.size // _ROUND_TARGETS)
         moved = fit_round(keep, stride)
-        _check_not_diverged(start, est)
+        _check_not_diverged(start, est, planar=not recording.has_elevation)
         same = previous is not None and np.array_equal(previous, index)
         previous = index
         if same and moved[0] < 1e-4 and moved[1] < 1e-3 and moved[2] < 1e-4:
@@ -983,6 +1024,12 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # jackknife's agreement on values nothing measured.
         cov7 = uncertainty.add_tilt(cov7, math.radians(_PLANAR_TILT_SIGMA_DEG))
         cov7[5, 5] += _PLANAR_HEIGHT_SIGMA_M ** 2
+        for moved in tilted_translations or []:
+            shift = (np.asarray(moved, float) - est.translation_m) * (
+                _PLANAR_TILT_SIGMA_DEG / _PLANAR_PROBE_DEG)
+            _LOG.debug('2-D radar: %.1f deg of held tilt moves the position by %s m',
+                       _PLANAR_TILT_SIGMA_DEG, np.round(shift, 3))
+            cov7[3:6, 3:6] += np.outer(shift, shift)
     model_difference = (np.zeros(3) if alternative_translation is None
                         else np.asarray(alternative_translation, float) - est.translation_m)
     cov7[3:6, 3:6] += uncertainty.model_term(model_difference, cov7[3:6, 3:6])
@@ -1055,8 +1102,13 @@ _MAX_TURN_DEG = 10.0
 _VELOCITY_SUSPECTS = "folded at the radar's unambiguous limit, or a scale or sign error?"
 
 
-def _check_not_diverged(start: Extrinsics, est: Extrinsics) -> None:
+def _check_not_diverged(start: Extrinsics, est: Extrinsics, planar: bool = False) -> None:
+    """Raise when the fit ran beyond ``_MAX_SHIFT_M`` / ``_MAX_TURN_DEG`` from the paper's
+    stages; horizontally only for a 2-D radar (``planar``), whose altitude starts at the
+    vehicle's and is found from the radial velocities metres higher."""
     angle, shift, _ = _change(start, est.rotation, est.translation_m, est.time_offset_s)
+    if planar:
+        shift = float(np.hypot(*(est.translation_m[:2] - start.translation_m[:2])))
     if shift > _MAX_SHIFT_M or math.degrees(angle) > _MAX_TURN_DEG:
         raise InsufficientDataError(
             'refine', f'the final refinement ran {shift:.1f} m and {math.degrees(angle):.1f} '
@@ -1143,10 +1195,13 @@ def _pose_block(covariance: F64, estimate_tau: bool) -> F64:
 
 
 def _anchor(prior_mean: F64, start: Extrinsics, est: Extrinsics) -> F64:
-    """Prior means for a round based at ``est``: the translation prior is centred on the
-    starting estimate (the parameters are offsets from the round's base)."""
+    """Prior means for a round based at ``est``: the translation prior (and the tilt's,
+    where there is one) is centred on the starting estimate (the parameters are offsets
+    from the round's base)."""
     mean = prior_mean.copy()
     mean[3:6] = start.translation_m - est.translation_m
+    if np.isfinite(mean[:2]).any():
+        mean[:2] = Rotation.from_matrix(start.rotation @ est.rotation.T).as_rotvec()[:2]
     return mean
 
 
@@ -1251,10 +1306,39 @@ def _inside_elevation_view(pos: F64, yaw: F64, est: Extrinsics, fov: tuple[float
     return ok
 
 
+def _slant_to_height(sensor: F64, height_m: F64, rotation: F64) -> F64:
+    """A 2-D radar's targets (range and azimuth in its plane, z = 0) lifted out of the
+    plane to ``height_m`` (n,) relative to the radar in the world, under ``rotation``.
+
+    Its range is the slant range, so a target below the radar lies nearer horizontally, by
+    height^2 / (2 range) (1.2 m at 15 m for a 6 m pole), a bias no reflection profile
+    follows. The elevation e that puts the target at that height solves
+    a cos e + b sin e = height / range, with (a, b) the world-vertical components of the
+    azimuth's in-plane direction and of the plane's normal. The heights are the model's
+    (the vehicle's plus the reflection prior) at the round's altitude, which the radial
+    velocities fix: their line of sight dips by the same angle and shrinks them by its
+    cosine.
+    """
+    rng = np.hypot(sensor[:, 0], sensor[:, 1])
+    az = np.arctan2(sensor[:, 1], sensor[:, 0])
+    a = rotation[2, 0] * np.cos(az) + rotation[2, 1] * np.sin(az)
+    b = np.full_like(a, rotation[2, 2])
+    norm = np.hypot(a, b)
+    # sin(e + psi) = c / norm with psi = atan2(a, b); the root nearest the plane
+    c = np.clip(height_m / np.maximum(rng, 1e-9) / norm, -_PLANAR_MAX_SIN, _PLANAR_MAX_SIN)
+    e = np.arcsin(c) - np.arctan2(a, b)
+    ce = np.cos(e)
+    return np.column_stack([rng * ce * np.cos(az), rng * ce * np.sin(az), rng * np.sin(e)])
+
+
 def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, poses: _Poses,
             scatter: F64, config: CalibConfig, fov: tuple[float, float]) -> _Selected:
     sensor = _debiased_positions(recording.targets.positions_m[index], config)
     pos, yaw, vel, _, _ = times.poses(poses, est.time_offset_s)
+    if not recording.has_elevation:
+        sensor = _slant_to_height(sensor, pos[:, 2] + config.refine.reflection_height_m
+                                  - config.vehicle.ref_height - est.translation_m[2],
+                                  est.rotation)
     x_lo, x_hi, _, _ = box_limits(config.vehicle)
     centre = pos - est.translation_m
     centre[:, 0] += 0.5 * (x_lo + x_hi) * np.cos(yaw)
