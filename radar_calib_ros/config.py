@@ -198,9 +198,11 @@ class RefineConfig:
                                     hi=30.0)
     reflection_height_m: float = _p(
         0.35, 'prior mean height above the road of all the vehicle targets, multipath images '
-        'below the road included [m]', lo=-2.0, hi=5.0)
+        'below the road included, for a car 1.5 m tall (scaled with vehicle.height) [m]',
+        lo=-2.0, hi=5.0)
     reflection_height_sigma_m: float = _p(
-        0.2, 'uncertainty of refine.reflection_height_m [m]', lo=1e-3, hi=5.0)
+        0.2, 'uncertainty of refine.reflection_height_m (scaled with it) [m]', lo=1e-3,
+        hi=5.0)
     model_check: bool = _p(
         True, "refit with the other refine.profile_range_terms and add the two positions' "
         "difference to the reported covariance (at most the fit's own variance along it)")

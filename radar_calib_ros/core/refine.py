@@ -34,10 +34,11 @@ Gauge and priors (the least we can defend):
   ALL the vehicle's targets, multipath images below the road included: direct returns
   average about 0.5 m (wheels, underbody, engine, sills), while the road ghosts and the
   multi-bounce returns of the wheel houses and underbody (15-30 % of the targets) sit about
-  as far below the road, hence 0.35 +- 0.2 m. (Measured on the simulator at the true pose:
-  0.17-0.38 m interior, 0.15-0.68 m skin.) The ghosts' mirror symmetry about the road does
-  in principle show the road itself; a mirror-mixture fit was tried and, at 1-2 deg of
-  elevation noise, scattered by 5-50 cm: not better than the prior, so not used.
+  as far below the road, hence 0.35 +- 0.2 m for a car 1.5 m tall, scaled with
+  ``vehicle.height`` for others (``reflection_height_prior``). (Measured on the simulator at
+  the true pose: 0.17-0.38 m interior, 0.15-0.68 m skin.) The ghosts' mirror symmetry about
+  the road does in principle show the road itself; a mirror-mixture fit was tried and, at
+  1-2 deg of elevation noise, scattered by 5-50 cm: not better than the prior, so not used.
 * Where the elevation field of view (found from all targets' elevations) cuts off the lower
   part of the car, what remains is higher on average, and more so at short range; a pitch
   error would follow it. Those frames give no height information (``_inside_elevation_view``).
@@ -1069,8 +1070,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         'depth_reference_range_m': model.r_ref,
         'elevation_view_deg': [math.degrees(fov[0]), math.degrees(fov[1])],
         'height_used_fraction': float(np.mean(data.vertical_ok)),
-        'reflection_height_prior_m': [config.refine.reflection_height_m,
-                                      config.refine.reflection_height_sigma_m],
+        'reflection_height_prior_m': list(reflection_height_prior(config)),
         'range_band_t_scale': pb.t_scale,
         # position under the other range law of the profile minus this one (zero unchecked)
         'model_difference_m': [float(v) for v in model_difference],
@@ -1205,6 +1205,22 @@ def _anchor(prior_mean: F64, start: Extrinsics, est: Extrinsics) -> F64:
     return mean
 
 
+#: Height of the car that ``refine.reflection_height_m`` and its sigma describe [m].
+_CAR_HEIGHT_M = 1.5
+
+
+def reflection_height_prior(config: CalibConfig) -> tuple[float, float]:
+    """Prior mean height of the vehicle's targets above the road, and its sigma [m]:
+    ``refine.reflection_height_m`` +- ``refine.reflection_height_sigma_m`` describe a car
+    1.5 m tall, and both scale with ``vehicle.height``. A van or a bus shows the radar
+    flat faces and sides up to its roof: a fifth probe's 2.9 m van and 3.2 m bus reflected
+    at 0.82 m on average against its car's 0.52 m, and the car's prior put their radars
+    50 cm low at a sigma of 19 cm."""
+    scale = config.vehicle.height / _CAR_HEIGHT_M
+    cfg = config.refine
+    return cfg.reflection_height_m * scale, cfg.reflection_height_sigma_m * scale
+
+
 def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F64, F64]:
     """Prior means (NaN = none) and sigmas of all parameters (see the module docstring)."""
     veh = config.vehicle
@@ -1226,8 +1242,9 @@ def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F6
     prof_mean = np.zeros(reflection.n_coefficients(harmonics))
     prof_sigma = np.full(prof_mean.size, 0.5 * veh.length)
     prof_mean[idx['a0']] = 0.5 * (x0 + x1)
-    prof_mean[idx['c0']] = config.refine.reflection_height_m - veh.ref_height
-    prof_sigma[idx['c0']] = config.refine.reflection_height_sigma_m
+    height, height_sigma = reflection_height_prior(config)
+    prof_mean[idx['c0']] = height - veh.ref_height
+    prof_sigma[idx['c0']] = height_sigma
     mean[i_prof:i_prof + prof_mean.size] = prof_mean
     sigma[i_prof:i_prof + prof_mean.size] = prof_sigma
     # range slopes: metres per unit of relative range
@@ -1336,7 +1353,7 @@ def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, po
     sensor = _debiased_positions(recording.targets.positions_m[index], config)
     pos, yaw, vel, _, _ = times.poses(poses, est.time_offset_s)
     if not recording.has_elevation:
-        sensor = _slant_to_height(sensor, pos[:, 2] + config.refine.reflection_height_m
+        sensor = _slant_to_height(sensor, pos[:, 2] + reflection_height_prior(config)[0]
                                   - config.vehicle.ref_height - est.translation_m[2],
                                   est.rotation)
     x_lo, x_hi, _, _ = box_limits(config.vehicle)
@@ -1352,7 +1369,7 @@ def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, po
     # The v_r line of sight takes the target's height from the model; the reflectors'
     # height scatter then tilts it by dz/|d|: add that to the v_r noise.
     los = sensor @ est.rotation.T
-    los[:, 2] = (pos[:, 2] + config.refine.reflection_height_m - config.vehicle.ref_height
+    los[:, 2] = (pos[:, 2] + reflection_height_prior(config)[0] - config.vehicle.ref_height
                  - est.translation_m[2])
     dist = np.linalg.norm(los, axis=1)
     unit = los / dist[:, None]

@@ -755,3 +755,15 @@ def test_a_refinement_running_far_from_the_start_stops(monkeypatch: pytest.Monke
                        match=r"refine: the final refinement ran \d+\.\d m and \d+\.\d deg away "
                              r"from the paper's stages' estimate .*folded"):
         _run(scene)
+
+
+def test_the_reflection_height_prior_scales_with_the_vehicle() -> None:
+    """A van or a bus reflects higher than a car: the prior (given for a car 1.5 m tall)
+    scales with vehicle.height, mean and sigma alike."""
+    car = CalibConfig()
+    assert refine.reflection_height_prior(car) == pytest.approx(
+        (car.refine.reflection_height_m, car.refine.reflection_height_sigma_m))
+    bus = CalibConfig.from_mapping({'vehicle.height': 3.0, 'vehicle.length': 12.0})
+    mean, sigma = refine.reflection_height_prior(bus)
+    assert mean == pytest.approx(2.0 * car.refine.reflection_height_m)
+    assert sigma == pytest.approx(2.0 * car.refine.reflection_height_sigma_m)
