@@ -178,3 +178,15 @@ def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None
               if d.n_targets < 20]
     assert len(unused) == 1 and unused[0].seen_share > 0.5
     assert 'could not be told apart' in quality._unused_drives_advice(unused, 5)
+
+
+def test_a_box_far_off_the_vehicle_is_named_but_faces_only_reflections_are_not() -> None:
+    """Targets metres outside the box (a bus configured as a car) earn the check of
+    vehicle.*; a low inlier ratio with targets just outside it (reflections on the faces,
+    half outside by noise) does not."""
+    sigma = {'along': 0.03, 'across': 0.02, 'vertical': 0.2, 'translation': 0.2,
+             'rotation_deg': 0.2}
+    far = quality._advice(8, [0.0, 180.0], sigma, 0.32, 2.35, False, CalibConfig())
+    assert any('2.4 m from it' in a and 'vehicle.length' in a for a in far)
+    faces = quality._advice(8, [0.0, 180.0], sigma, 0.35, 0.16, False, CalibConfig())
+    assert not any('vehicle.length' in a for a in faces)
