@@ -204,11 +204,19 @@ def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:
             f'vehicle poses ({_span(poses)}) do not overlap in time; check the clocks and '
             'sync.time_offset')
     interval = float(np.median(np.diff(poses))) * 1e-9
+    # Odometry beside slow fixes gives the heading between them, not the position (a fifth
+    # probe's 1 Hz fixes with 50 Hz Odometry were refused without saying what to set;
+    # raised to 1.5 s, they gave 8.5 cm)
+    odometry = recording.counters.get('odometry', 0)
+    beside = (f'; the {odometry} Odometry samples give the heading between the fixes, and '
+              f'sync.max_pose_gap {1.5 * interval:.1f} s would interpolate the positions '
+              'linearly between them (fine while the vehicle drives steadily)'
+              if odometry > 2 * len(poses) else '')
     raise InsufficientDataError(
         'read', f'the vehicle poses come every {interval:.2f} s (median), more than '
         f'sync.max_pose_gap {sync.max_pose_gap:g} s, so no radar frame can be paired with a '
         'pose: record the poses faster or, for straight steady driving, raise '
-        'sync.max_pose_gap')
+        f'sync.max_pose_gap{beside}')
 
 
 #: Radar frames outside the pose stream worth a note (share), and a jump of the radar's
