@@ -423,6 +423,16 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                                                   config)
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
+        max_off = config.sync.max_time_offset
+        if config.sync.estimate_time_offset and abs(current.time_offset_s) > max_off > 0:
+            # The bound is a soft prior in the fit: an estimate beyond it means the vehicle
+            # could not be placed in time (a fifth probe's 1 Hz fixes: -0.42 s, truth 0).
+            corrections.append(
+                f'The fitted radar clock offset ({current.time_offset_s:+.3f} s on top of '
+                f'sync.time_offset) lies beyond sync.max_time_offset ({max_off:g} s): the '
+                'vehicle poses may be too sparse or uneven to place it in time (fixes '
+                'below 5 Hz), or the clocks are further apart than that; check the pose '
+                'rate and the clocks before trusting the position along the travel.')
     with stage('quality'):
         detection = quality.check_vehicle_detection(current, recording, config)
         report = quality.assess_quality(current, refinement, recording, tracked, selection,

@@ -152,7 +152,39 @@ def test_a_2d_radar_is_named_in_the_advice() -> None:
     assert tilted.has_elevation and not _data_notes(tilted, [])
 
 
-def test_a_2d_radar_calibrates_with_its_tilt_in_the_uncertainty(tmp_path: Any) -> None:
+@pytest.fixture(scope='module')
+def drive(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """150 s of the baseline scenario (five passes) and its configuration."""
+    from radar_calib_ros.sim import simulate
+
+    summary = simulate(tmp_path_factory.mktemp('drive') / 'bag', seed=3, duration_s=150.0)
+    return summary, CalibConfig.from_file(summary.paths.params)
+
+
+def test_a_clock_offset_fitted_beyond_its_bound_is_noted(drive: Any,
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """The clock-offset bound is a soft prior in the fit; an estimate past it (sparse poses)
+    is said, not silently reported."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.pipeline import run_calibration
+
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    real = pipeline.refine.refine_extrinsics
+
+    def drifting(*args: Any) -> Any:
+        out = real(*args)
+        ext = out.extrinsics
+        return dataclasses.replace(out, extrinsics=Extrinsics(ext.rotation, ext.translation_m,
+                                                              0.42))
+    assert not any('beyond sync.max_time_offset' in a
+                   for a in run_calibration(recording, config).quality.advice)
+    monkeypatch.setattr(pipeline.refine, 'refine_extrinsics', drifting)
+    advice = run_calibration(recording, config).quality.advice
+    assert any('+0.420 s' in a and 'beyond sync.max_time_offset (0.25 s)' in a for a in advice)
+
+
+def test_a_2d_radar_calibrates_with_its_tilt_in_the_uncertainty(drive: Any) -> None:
     """A simulated drive seen by a radar without elevation (slant range and azimuth in its
     plane, z = 0): it used to be refused (the fit tilted the plane through the car). It
     calibrates now: yaw and position from the plane, the altitude from the radial
@@ -162,10 +194,8 @@ def test_a_2d_radar_calibrates_with_its_tilt_in_the_uncertainty(tmp_path: Any) -
     from radar_calib_ros.groundtruth import calibration_errors
     from radar_calib_ros.io.bag import read_recording
     from radar_calib_ros.pipeline import run_calibration
-    from radar_calib_ros.sim import simulate
 
-    summary = simulate(tmp_path / 'bag', seed=3, duration_s=150.0)
-    config = CalibConfig.from_file(summary.paths.params)
+    summary, config = drive
     recording = read_recording(summary.paths.bag, config)
     p = recording.targets.positions_m
     slant = np.linalg.norm(p, axis=1) / np.maximum(np.hypot(p[:, 0], p[:, 1]), 1e-9)
