@@ -917,7 +917,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # the car (a fifth probe's six such recordings ran 8-22 deg off and were refused).
         # They stay where the paper's stages put them (level), and the covariance says how
         # little that is worth. The altitude is left to the radial velocities, which the
-        # line of sight's dip shrinks (see ``_slant_to_level``).
+        # line of sight's dip shrinks (see ``_slant_to_height``).
         prior_mean[:2], prior_sigma[:2] = 0.0, _PLANAR_HOLD_RAD
         prior_sigma[5] = _PLANAR_ALTITUDE_SIGMA_M
     start = est
@@ -1339,7 +1339,7 @@ def _slant_to_height(sensor: F64, height_m: F64, rotation: F64) -> F64:
     rng = np.hypot(sensor[:, 0], sensor[:, 1])
     az = np.arctan2(sensor[:, 1], sensor[:, 0])
     a = rotation[2, 0] * np.cos(az) + rotation[2, 1] * np.sin(az)
-    b = np.full_like(a, rotation[2, 2])
+    b = rotation[2, 2]
     norm = np.hypot(a, b)
     # sin(e + psi) = c / norm with psi = atan2(a, b); the root nearest the plane
     c = np.clip(height_m / np.maximum(rng, 1e-9) / norm, -_PLANAR_MAX_SIN, _PLANAR_MAX_SIN)
@@ -1352,10 +1352,11 @@ def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, po
             scatter: F64, config: CalibConfig, fov: tuple[float, float]) -> _Selected:
     sensor = _debiased_positions(recording.targets.positions_m[index], config)
     pos, yaw, vel, _, _ = times.poses(poses, est.time_offset_s)
+    # the model's target heights relative to the radar (the vehicle's plus the prior)
+    above_radar = (pos[:, 2] + reflection_height_prior(config)[0] - config.vehicle.ref_height
+                   - est.translation_m[2])
     if not recording.has_elevation:
-        sensor = _slant_to_height(sensor, pos[:, 2] + reflection_height_prior(config)[0]
-                                  - config.vehicle.ref_height - est.translation_m[2],
-                                  est.rotation)
+        sensor = _slant_to_height(sensor, above_radar, est.rotation)
     x_lo, x_hi, _, _ = box_limits(config.vehicle)
     centre = pos - est.translation_m
     centre[:, 0] += 0.5 * (x_lo + x_hi) * np.cos(yaw)
@@ -1369,8 +1370,7 @@ def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, po
     # The v_r line of sight takes the target's height from the model; the reflectors'
     # height scatter then tilts it by dz/|d|: add that to the v_r noise.
     los = sensor @ est.rotation.T
-    los[:, 2] = (pos[:, 2] + reflection_height_prior(config)[0] - config.vehicle.ref_height
-                 - est.translation_m[2])
+    los[:, 2] = above_radar
     dist = np.linalg.norm(los, axis=1)
     unit = los / dist[:, None]
     v_along = np.einsum('ij,ij->i', vel, unit)

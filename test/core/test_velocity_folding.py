@@ -30,24 +30,17 @@ def _with_velocities(recording: Recording, v: np.ndarray) -> Recording:
     return replace(recording, targets=replace(recording.targets, radial_velocity_mps=v))
 
 
-def _near_vehicle(truth: Extrinsics, recording: Recording, config: CalibConfig
-                  ) -> np.ndarray:
-    index, _ = velocity_folding._near_vehicle(truth, recording,
-                                              np.arange(len(recording.targets)), config,
-                                              config.refine.gate_m)
-    return index
-
-
 @pytest.mark.parametrize('period', [6.0, 9.0])
 def test_a_fold_is_found_on_the_vehicle_and_undone(
         truth: Extrinsics, recording: Recording, config: CalibConfig,
         period: float) -> None:
     true_v = recording.targets.radial_velocity_mps
     folded = _with_velocities(recording, true_v - period * np.round(true_v / period))
-    near = _near_vehicle(truth, recording, config)
+    everything = np.arange(len(recording.targets))
+    near, predicted = velocity_folding._near_vehicle(truth, recording, everything, config,
+                                                     config.refine.gate_m)
     was_folded = np.abs(true_v[near]) > period / 2
     assert was_folded.mean() > 0.03   # the drive folds enough to matter
-    everything = np.arange(len(recording.targets))
     found = velocity_folding.detect_folding(truth, folded, everything, config)
     assert found is not None and found.period_mps == pytest.approx(period, abs=0.02)
     unfolded, done = velocity_folding.unfold_radial_velocities(folded, truth,
@@ -56,11 +49,9 @@ def test_a_fold_is_found_on_the_vehicle_and_undone(
     # the vehicle's targets are back, to the period's precision, wherever its motion
     # predicts them within half a period (wheel micro-Doppler and ghosts may not be: they
     # land a period away, outliers either way), and the input stays as it was
-    index, predicted = velocity_folding._near_vehicle(truth, recording, everything, config,
-                                                      config.refine.gate_m)
-    body = np.abs(true_v[index] - predicted) < period / 2 - 0.5
+    body = np.abs(true_v[near] - predicted) < period / 2 - 0.5
     assert body.mean() > 0.9
-    assert np.mean(np.abs(v[index[body]] - true_v[index[body]]) < 0.03) > 0.995
+    assert np.mean(np.abs(v[near[body]] - true_v[near[body]]) < 0.03) > 0.995
     assert done.n_unfolded >= 0.97 * was_folded.sum()
     assert np.count_nonzero(v != folded.targets.radial_velocity_mps) == done.n_unfolded
     assert np.array_equal(folded.targets.radial_velocity_mps,
@@ -75,7 +66,8 @@ def test_no_fold_is_found_where_there_is_none(
     # A tenth of the vehicle's targets off by one speed, regardless of their sign (another
     # car riding along, a bias): a peak, but not a fold, which brings speeds back from the
     # far end of the interval.
-    near = _near_vehicle(truth, recording, config)
+    near, _ = velocity_folding._near_vehicle(truth, recording, everything, config,
+                                             config.refine.gate_m)
     rng = np.random.default_rng(3)
     decoys = rng.choice(near, near.size // 10, replace=False)
     v = recording.targets.radial_velocity_mps.copy()
