@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial.transform import Rotation
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import ConfigError, InsufficientDataError
@@ -346,6 +347,7 @@ class RecordingBuilder:
             yaw_true = np.arctan2(2.0 * (q[:, 3] * q[:, 2] + q[:, 0] * q[:, 1]),
                                   1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2))
             v_body = np.array([o.velocity_body_mps for o in odoms], np.float64)
+            v_level = _level_twist(q, yaw_true, v_body)
             rate = np.array([o.yaw_rate_rps for o in odoms], np.float64)
             to = (o_stamps - stamps[0]) * 1e-9
             yaw_true_at = _interp_angle(t, to, yaw_true)
@@ -357,8 +359,12 @@ class RecordingBuilder:
             coarse = _position_velocities(t, positions[:, :2], _TWIST_CHECK_SPAN_S)
             yaw = _checked_orientation(t, coarse, measured, yaw_true_at, lat, lon, frame,
                                        cfg.vehicle.min_heading_speed, self.counters)
-            vx = np.interp(t, to, v_body[:, 0])
-            vy = np.interp(t, to, v_body[:, 1])
+            vx = np.interp(t, to, v_level[:, 0])
+            vy = np.interp(t, to, v_level[:, 1])
+            if not _tilted(q):
+                # a heading-only orientation on a grade: the fixes' climb tells the tilt
+                level = _grade_cosine(t, positions, np.hypot(vx, vy), self._fix_sigma())
+                vx, vy = vx * level, vy * level
             c, s = np.cos(yaw), np.sin(yaw)
             yaw_rate = np.interp(t, to, rate)
             velocities = _checked_twist(t, positions, measured, coarse, np.column_stack(
@@ -530,6 +536,51 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, yaw_true: F64, lat:
                  '%.0f deg off its course over ground): the heading is taken from the course '
                  'over ground instead', math.degrees(as_given))
     return _course_over_ground(t, measured, min_speed)[0]
+
+
+def _level_twist(quaternion_xyzw: F64, yaw: F64, v_body: F64) -> F64:
+    """(n, 3) body-frame twists turned into the level frame that shares the vehicle's
+    heading: rotated by the full orientation, then back by its yaw.
+
+    Why: REP-105's twist is along the vehicle's own axes, so on a grade its x is the speed
+    along the slope, and the horizontal speed is shorter by the cosine of the pitch (0.18 %
+    at 6 %). The final refinement takes the speed at its word, and a speed that much too
+    high was absorbed by the dip of the radial velocities' line of sight: an independent
+    recording on a 6 % road along a mid-block view came out 50 cm high and 30-45 cm off
+    across the boresight, well outside its sigma. A level orientation changes nothing.
+    """
+    rot = Rotation.from_quat(quaternion_xyzw)
+    return Rotation.from_euler('z', -yaw[:, None]).apply(rot.apply(v_body))
+
+
+#: Orientation tilt [rad] above which the quaternions are taken to carry pitch and roll
+#: (an INS's attitude); a heading-only orientation is level to rounding.
+_TILT_CARRIED_RAD = math.radians(0.05)
+#: Vertical sigma of the fixes [m] up to which their climb is trusted for the grade
+#: (RTK: 2-5 cm; a standalone fix's metres would invent grades), and the largest grade
+#: taken from it (a steeper one is the noise of a slow vehicle's altitude).
+_GRADE_FIX_SIGMA_M = 0.1
+_GRADE_MAX = 0.15
+
+
+def _tilted(quaternion_xyzw: F64) -> bool:
+    """True when any orientation is tilted out of the level (pitch or roll carried)."""
+    z_axis = Rotation.from_quat(quaternion_xyzw).apply([0.0, 0.0, 1.0])
+    return bool(np.any(np.arccos(np.clip(z_axis[:, 2], -1.0, 1.0)) > _TILT_CARRIED_RAD))
+
+
+def _grade_cosine(t: F64, positions: F64, speed: F64,
+                  fix_sigma: tuple[float, float] | None) -> F64:
+    """(n,) cosine of the vehicle's pitch on the road's grade, from the fixes' climb over
+    +-1 s against the twist's speed along the slope, for a twist whose orientation is
+    heading-only; ones where the fixes are too coarse to say (no declared sigma, or a
+    vertical sigma above ``_GRADE_FIX_SIGMA_M``)."""
+    if fix_sigma is None or not fix_sigma[1] <= _GRADE_FIX_SIGMA_M:
+        return np.ones(t.size)
+    climb = _finite_difference(t, positions[:, 2], _TWIST_CHECK_SPAN_S)
+    sine = np.clip(climb / np.maximum(speed, 1e-9), -_GRADE_MAX, _GRADE_MAX)
+    sine[speed < _TWIST_CHECK_SPEED_MPS] = 0.0
+    return np.sqrt(1.0 - sine ** 2)
 
 
 def _interp_angle(tq: F64, t: F64, angle: F64) -> F64:
