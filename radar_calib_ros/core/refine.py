@@ -43,9 +43,12 @@ Gauge and priors (the least we can defend):
   part of the car, what remains is higher on average, and more so at short range; a pitch
   error would follow it. Those frames give no height information (``_inside_elevation_view``).
 * Weak bounds keep the profile on the car (coefficients within about a car length), the
-  clock offset within ``sync.max_time_offset`` and the translation within half a metre of
-  the paper's estimate; they only matter when the data say nothing, and then they are what
-  the reported uncertainty shows.
+  clock offset within ``sync.max_time_offset`` and the horizontal translation within half a
+  metre of the paper's estimate; they only matter when the data say nothing, and then they
+  are what the reported uncertainty shows. The altitude has no such bound: only the height
+  prior above may decide it (``_ALTITUDE_START_SIGMA_M``).
+* On a grade the car is pitched with the road (``_road_grades``): the profile's offsets
+  ahead of the reference point are raised by the grade.
 
 Information, not frame count: a car crawling in a queue gives hundreds of near-identical
 frames from one place and one aspect. Frames are binned by (vehicle position, aspect) and
@@ -93,9 +96,14 @@ _PLANAR_HOLD_RAD = 1e-5
 _PLANAR_MAX_SIN = 0.98
 #: Tilt by which a 2-D radar's held roll and pitch are moved to see what they carry [deg].
 _PLANAR_PROBE_DEG = 2.0
-#: A 2-D radar's altitude starts at the vehicle's (stage 6 pairs its plane with the
-#: vehicle), metres below the pole's: its prior around that start must not hold it [m].
-_PLANAR_ALTITUDE_SIGMA_M = 30.0
+#: Width of the prior around the starting altitude [m]: none to speak of. The elevations
+#: and the radial velocities' dip fix the radar's height above the vehicle's targets, and
+#: the reflection-height prior says where those lie; the paper's stages know no more (their
+#: altitude rests on the ground plane, and a 2-D radar's starts at the vehicle's, metres
+#: below the pole). A half-metre prior there leaked into what only the reflection-height
+#: prior should decide: on a 6 % road the start was 3.5 m high, and pulled the result
+#: 50 cm up (an independent recording, sigma 21 cm).
+_ALTITUDE_START_SIGMA_M = 30.0
 #: Fewest targets a refinement is attempted with.
 _MIN_TARGETS = 30
 #: Fewest targets of a pass (see ``_in_passes``).
@@ -150,17 +158,25 @@ class _Poses:
     accelerations_mps2: F64
     yaw_accelerations_rps2: F64
     max_gap_s: float
+    grades: F64
 
     @classmethod
-    def from_track(cls, vehicle: VehicleTrack, t0_ns: int, max_gap_s: float) -> _Poses:
+    def from_track(cls, vehicle: VehicleTrack, t0_ns: int, max_gap_s: float,
+                   fix_sigma_m: tuple[float, float] | None = None) -> _Poses:
         t = (vehicle.stamps_ns - t0_ns) * 1e-9
         vel = np.asarray(vehicle.velocities_mps, float)
         # Acceleration only enters the Jacobian of the clock offset (dv_r/dtau): a central
         # difference over +-0.25 s is ample.
         acc = np.column_stack([_central_difference(t, vel[:, i], 0.25) for i in range(3)])
         rate = np.asarray(vehicle.yaw_rate_rps, float)
-        return cls(t, np.asarray(vehicle.positions_m, float), np.unwrap(vehicle.yaw_rad),
-                   vel, rate, acc, _central_difference(t, rate, 0.25), max_gap_s)
+        positions = np.asarray(vehicle.positions_m, float)
+        return cls(t, positions, np.unwrap(vehicle.yaw_rad), vel, rate, acc,
+                   _central_difference(t, rate, 0.25), max_gap_s,
+                   _road_grades(positions, np.asarray(vehicle.yaw_rad, float), fix_sigma_m))
+
+    def grade_at(self, t_s: F64) -> F64:
+        """(n,) the road's grade along the vehicle's heading at t_s (see ``_road_grades``)."""
+        return np.interp(t_s, self.t_s, self.grades)
 
     def at(self, t_s: F64) -> tuple[F64, F64, F64, F64, F64]:
         """Position (n, 3), yaw (n,), velocity (n, 3), yaw rate (n,), and the time
@@ -183,6 +199,42 @@ class _Poses:
         upper = np.clip(np.searchsorted(tv, t_s, side='left'), 1, tv.size - 1)
         gap = tv[upper] - tv[upper - 1]
         return (t_s >= tv[0]) & (t_s <= tv[-1]) & (gap <= self.max_gap_s)
+
+
+#: Half the stretch of road a grade is measured over [m], the fixes' largest vertical
+#: sigma that gives one [m] (RTK's 2-5 cm: 0.3 % over 10 m; a standalone fix's metres would
+#: invent grades), and the steepest grade believed (a road's; more is the altitude's noise).
+_GRADE_HALF_PATH_M = 5.0
+_GRADE_FIX_SIGMA_M = 0.1
+_GRADE_MAX = 0.15
+
+
+def _road_grades(positions: F64, yaw: F64, fix_sigma_m: tuple[float, float] | None) -> F64:
+    """(n,) the road's grade along the vehicle's heading (rise per metre forward), from the
+    fixes' altitude over +-``_GRADE_HALF_PATH_M`` of the path; zeros where the fixes do not
+    declare a vertical sigma of at most ``_GRADE_FIX_SIGMA_M``.
+
+    Why: a car on a grade is pitched with it, so what it shows the radar is raised by the
+    grade times its distance ahead of the reference point: the front of a car climbing
+    towards a radar sits higher, the rear of one climbing away lower. On a road along the
+    line of sight the two directions drive on either side of the radar, and that height
+    difference was fitted as roll (0.6-0.9 deg on an independent 6 % road, with 20-45 cm
+    across the boresight).
+    """
+    n = positions.shape[0]
+    if n < 2 or fix_sigma_m is None or not fix_sigma_m[1] <= _GRADE_FIX_SIGMA_M:
+        return np.zeros(n)
+    step = np.hypot(*np.diff(positions[:, :2], axis=0).T)
+    path = np.concatenate([[0.0], np.cumsum(step)])
+    lo = np.clip(np.searchsorted(path, path - _GRADE_HALF_PATH_M, side='left'), 0, n - 1)
+    hi = np.clip(np.searchsorted(path, path + _GRADE_HALF_PATH_M, side='right') - 1, 0, n - 1)
+    d = positions[hi] - positions[lo]
+    # the climb per metre along the heading: a reversing car climbs backwards; at the ends
+    # of the drive the stretch is one-sided, and shorter than 2.5 m says nothing
+    forward = d[:, 0] * np.cos(yaw) + d[:, 1] * np.sin(yaw)
+    enough = np.abs(forward) >= 0.5 * _GRADE_HALF_PATH_M
+    grade = np.where(enough, d[:, 2] / np.where(enough, forward, 1.0), 0.0)
+    return np.clip(grade, -_GRADE_MAX, _GRADE_MAX)
 
 
 def _central_difference(t: F64, x: F64, half_span_s: float) -> F64:
@@ -249,6 +301,7 @@ class _Selected:
     whiten: F64            # (n, 3, 3) inverse Cholesky factor of the position covariance
     sigma_v: F64           # (n,) radial-velocity sigma [m/s]
     vertical_ok: np.ndarray  # (n,) the target's height is used (vehicle inside the view)
+    grade: F64             # (n,) the road's grade along the vehicle's heading
 
 
 class _Model:
@@ -310,18 +363,26 @@ class _Model:
         # model 22 -> 10 cm) at no cost elsewhere.
         rho = np.hypot(centre_los[:, 0], centre_los[:, 1]) / self.r_ref - 1.0
         if self.range_terms == 'full':
-            range_basis = basis[:, :, :self.n_range]
-            d_range_basis = d_basis[:, :, :self.n_range]
+            range_basis = basis[:, :, :self.n_range].copy()
+            d_range_basis = d_basis[:, :, :self.n_range].copy()
         else:
             ca, sa = np.cos(aspect), np.sin(aspect)
             range_basis = np.zeros((basis.shape[0], 3, 1))
             range_basis[:, 0, 0], range_basis[:, 1, 0] = -ca, -sa
             d_range_basis = np.zeros_like(range_basis)
             d_range_basis[:, 0, 0], d_range_basis[:, 1, 0] = sa, -ca
+        # On a grade the car is pitched with the road: an offset ahead of the reference
+        # point is raised by the grade times its length (see ``_road_grades``). A cross
+        # slope (a road's 2 % camber) tilts the sides by centimetres and is not modelled.
+        grade = d.grade[:, None]
+        for b in (range_basis, d_range_basis):
+            b[:, 2, :] = grade * b[:, 0, :]
         extra = range_basis * rho[:, None, None]
         d_extra = d_range_basis * rho[:, None, None]
         basis = np.concatenate([basis, extra], axis=2)
         d_basis = np.concatenate([d_basis, d_extra], axis=2)
+        basis[:, 2, :-self.n_range] += grade * basis[:, 0, :-self.n_range]
+        d_basis[:, 2, :-self.n_range] += grade * d_basis[:, 0, :-self.n_range]
         offset = basis @ prof
         rz_offset = np.column_stack([c * offset[:, 0] - s * offset[:, 1],
                                      s * offset[:, 0] + c * offset[:, 1], offset[:, 2]])
@@ -869,7 +930,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             tilted_translations: list[F64] | None = None) -> Refinement:
     cfg = config.refine
     t0_ns = int(recording.vehicle.stamps_ns[0])
-    poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap)
+    poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap,
+                              recording.fix_sigma_m)
     candidates = np.asarray(tracked.target_index, np.int64)
     track_ids = np.asarray(tracked.track_id, np.int64)
     accepted = np.asarray(selection.accepted_track_ids, np.int64)
@@ -919,7 +981,6 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # little that is worth. The altitude is left to the radial velocities, which the
         # line of sight's dip shrinks (see ``_slant_to_height``).
         prior_mean[:2], prior_sigma[:2] = 0.0, _PLANAR_HOLD_RAD
-        prior_sigma[5] = _PLANAR_ALTITUDE_SIGMA_M
     start = est
     profile = np.nan_to_num(prior_mean[(7 if estimate_tau else 6):])
     scatter = np.full(3, cfg.position_sigma_m)
@@ -1237,6 +1298,7 @@ def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F6
     # on model mismatch; elsewhere the data outweigh it a hundred-fold. It enters the
     # covariance, so there the reported uncertainty is the half metre it really is.
     mean[3:6], sigma[3:6] = 0.0, _START_SIGMA_M
+    sigma[5] = _ALTITUDE_START_SIGMA_M
     x0, x1, _, _ = box_limits(veh)
     idx = reflection.coefficient_index(harmonics)
     prof_mean = np.zeros(reflection.n_coefficients(harmonics))
@@ -1376,8 +1438,9 @@ def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, po
     v_along = np.einsum('ij,ij->i', vel, unit)
     dv_dh = (vel[:, 2] - v_along * unit[:, 2]) / dist
     sigma_v = np.sqrt(config.refine.velocity_sigma_mps ** 2 + (dv_dh * scatter[2]) ** 2)
+    grade = poses.grade_at(times.frame_t + est.time_offset_s)[times.inverse]
     return _Selected(index, sensor, times, recording.targets.radial_velocity_mps[index],
-                     np.sqrt(weight), pass_id, whiten, sigma_v, vertical_ok)
+                     np.sqrt(weight), pass_id, whiten, sigma_v, vertical_ok, grade)
 
 
 def _scatter(model: _Model, x: F64, floor_m: float, config: CalibConfig) -> F64:

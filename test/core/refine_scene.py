@@ -136,8 +136,11 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
                time_offset_s: float = 0.04, noise: bool = True, targets_per_frame: float = 6.0,
                profile: np.ndarray | None = None, n_passes: int | None = None,
                initial_error: tuple[float, float, float] = (0.3, 1.0, 0.0),
-               crawl: bool = False, config: CalibConfig | None = None) -> Scene:
-    """Build a scene; ``initial_error`` = (translation [m], yaw [deg], clock offset [s])."""
+               crawl: bool = False, config: CalibConfig | None = None,
+               grade: float = 0.0) -> Scene:
+    """Build a scene; ``initial_error`` = (translation [m], yaw [deg], clock offset [s]);
+    ``grade``: the road climbs this much per metre along the boresight, and the car is
+    pitched with it (the fixes then declare RTK's 2-3 cm, which the grade is measured by)."""
     rng = np.random.default_rng(seed)
     cfg = config or CalibConfig()
     truth = radar_truth()
@@ -163,11 +166,14 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
         p = np.column_stack([np.interp(s, s_path, xy[:, 0]), np.interp(s, s_path, xy[:, 1]),
                              np.full(s.size, ref_z)])
         h = np.interp(s, s_path, head)
+        p[:, 2] += grade * ((p[:, 0] - truth.translation_m[0]) * np.cos(yaw_r)
+                            + (p[:, 1] - truth.translation_m[1]) * np.sin(yaw_r))
+        climb = speed * grade * np.cos(h - yaw_r)
         hr = np.gradient(h, t)
         stamps.append(t + t_cursor)
         pos.append(p)
         yaw.append(h)
-        vel.append(np.column_stack([speed * np.cos(h), speed * np.sin(h), np.zeros(s.size)]))
+        vel.append(np.column_stack([speed * np.cos(h), speed * np.sin(h), climb]))
         rate.append(hr)
         pass_t.append((t_cursor, t_cursor + t[-1]))
         t_cursor += t[-1] + 4.0
@@ -204,6 +210,8 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
                                                     np.zeros(tgt_frame.size)])
     aspect = reflection.aspect_angles(centre - truth.translation_m, fy[tgt_frame])
     local, wheel, delay = _vehicle_targets(rng, model, aspect, cfg.vehicle, profile)
+    # pitched with the road: a point ahead of the reference point sits higher uphill
+    local[:, 2] += grade * np.cos(fy[tgt_frame] - yaw_r) * local[:, 0]
     c, s = np.cos(fy[tgt_frame]), np.sin(fy[tgt_frame])
     world = fp[tgt_frame] + np.column_stack([c * local[:, 0] - s * local[:, 1],
                                              s * local[:, 0] + c * local[:, 1], local[:, 2]])
@@ -244,7 +252,8 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
     pass_of_target = np.where(is_vehicle, pass_of_frame[frame_of_target], -1)
     targets = Targets(positions, velocities, frame_of_target.astype(np.int64))
     frame = LocalFrame.at(48.4, 9.9)
-    recording = Recording((frame_stamp * 1e9).astype(np.int64), targets, vehicle, frame)
+    recording = Recording((frame_stamp * 1e9).astype(np.int64), targets, vehicle, frame,
+                          fix_sigma_m=(0.02, 0.03) if grade else None)
     moving = np.flatnonzero(np.abs(velocities) > 0.1 / 3.6)
     track_id = np.where(is_vehicle[moving], pass_of_target[moving], -1)
     tracked = TrackedTargets(moving.astype(np.int64), track_id.astype(np.int64))

@@ -69,11 +69,14 @@ def test_aspect_angle_convention() -> None:
 
 @pytest.mark.parametrize('range_terms', ['depth', 'full'])
 def test_analytic_jacobian_matches_finite_differences(range_terms: str) -> None:
-    scene = make_scene(3, model='interior', n_passes=4)
+    # on a grade, so that the pitched car's heights are part of the model checked
+    scene = make_scene(3, model='interior', n_passes=4, grade=0.04)
     cfg = dataclasses.replace(scene.config, refine=dataclasses.replace(
         scene.config.refine, profile_range_terms=range_terms))
     t0 = int(scene.recording.vehicle.stamps_ns[0])
-    poses = refine._Poses.from_track(scene.recording.vehicle, t0, cfg.sync.max_pose_gap)
+    poses = refine._Poses.from_track(scene.recording.vehicle, t0, cfg.sync.max_pose_gap,
+                                     scene.recording.fix_sigma_m)
+    assert np.abs(poses.grades).max() > 0.03
     index = scene.vehicle_target_index[::7]
     times = refine._Times.of(scene.recording, index, 0.0, t0)
     # away from the ends of the pose stream, where interpolation clamps
@@ -767,3 +770,39 @@ def test_the_reflection_height_prior_scales_with_the_vehicle() -> None:
     mean, sigma = refine.reflection_height_prior(bus)
     assert mean == pytest.approx(2.0 * car.refine.reflection_height_m)
     assert sigma == pytest.approx(2.0 * car.refine.reflection_height_sigma_m)
+
+
+def test_road_grades_follow_the_heading_and_need_precise_altitude() -> None:
+    """The grade is the climb per metre along the heading: + driving uphill, - driving (or
+    reversing with the nose) downhill; none from metre-level altitudes."""
+    s = np.arange(0.0, 60.0, 0.2)
+    positions = np.column_stack([s, np.zeros_like(s), 0.06 * s])
+    uphill = refine._road_grades(positions, np.zeros(s.size), (0.02, 0.03))
+    downhill = refine._road_grades(positions, np.full(s.size, np.pi), (0.02, 0.03))
+    np.testing.assert_allclose(uphill, 0.06, atol=1e-9)
+    np.testing.assert_allclose(downhill, -0.06, atol=1e-9)
+    assert not refine._road_grades(positions, np.zeros(s.size), (1.5, 3.0)).any()
+    assert not refine._road_grades(positions, np.zeros(s.size), None).any()
+    # a standstill: the road's grade around where it stands, not 0/0
+    stop = np.concatenate([positions[:150], np.repeat(positions[150:151], 100, axis=0),
+                           positions[151:]])
+    np.testing.assert_allclose(refine._road_grades(stop, np.zeros(len(stop)), (0.02, 0.03)),
+                               0.06, atol=1e-9)
+
+
+def test_a_road_climbing_along_the_boresight_is_not_taken_for_roll() -> None:
+    """On a 6 % road seen head-on and tail-on, a car climbing away shows its rear lower and
+    one coming down shows its front lower than on the flat, and the two directions drive on
+    either side of the radar: without the grade that reads as 2 deg of roll. With it, the
+    estimate is the flat road's twin's."""
+    flat = _run(make_scene(1, model='interior', geometry='head_on')).extrinsics
+    scene = make_scene(1, model='interior', geometry='head_on', grade=0.06)
+
+    def tilt_from_flat(est: Extrinsics) -> float:
+        return float(np.degrees(Rotation.from_matrix(est.rotation @ flat.rotation.T)
+                                .magnitude()))
+
+    assert tilt_from_flat(_run(scene).extrinsics) < 0.15
+    blind = dataclasses.replace(scene, recording=dataclasses.replace(scene.recording,
+                                                                     fix_sigma_m=None))
+    assert tilt_from_flat(_run(blind).extrinsics) > 1.0
