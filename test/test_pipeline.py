@@ -282,3 +282,19 @@ def test_a_failure_says_what_the_clocks_showed() -> None:
     with pytest.raises(InsufficientDataError) as plain:
         run_calibration(rec, CalibConfig())
     assert 'received' not in str(plain.value)
+
+
+def test_a_clock_shift_the_final_fit_does_not_confirm_is_not_blamed_on_the_clocks(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Stage 6 agreeing only at a shifted clock is the clocks' when the final fit finds that
+    offset; when it finds none, the note points at vehicle.* instead (a bus under a car's
+    box: +0.20 s at stage 6, 4 ms fitted)."""
+    assert pipeline._shift_note(0.0, 0.01) is None
+    with caplog.at_level('WARNING', logger='radar_calib_ros.pipeline'):
+        assert pipeline._shift_note(0.2, 0.17) is None
+        assert pipeline._shift_note(-0.1, None) is None
+    assert sum('clock offset between radar and vehicle' in r.message
+               for r in caplog.records) == 2
+    note = pipeline._shift_note(0.2, -0.0036)
+    assert note is not None and '+0.20 s' in note and '-0.004 s' in note
+    assert 'vehicle.*' in note
