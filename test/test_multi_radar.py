@@ -21,10 +21,12 @@ FRAMES = ['radar_1', 'radar_2', 'radar_3']
 
 @pytest.fixture(scope='module')
 def three(tmp_path_factory: pytest.TempPathFactory) -> tuple[SimulationSummary, Path]:
-    """150 s past three radars (about five passes) and a parameters file that accepts two
-    agreeing passes, so that each radar calibrates from this short drive."""
+    """180 s past three radars (five or six passes each) and a parameters file that accepts
+    two agreeing passes, so that each radar calibrates from this short drive. (At 150 s, one
+    radar of some drives sees four passes and two of them are other road users that agree
+    by chance: the tool rightly refuses it.)"""
     root = tmp_path_factory.mktemp('three')
-    sim = simulate(root / 'bag', seed=5, duration_s=150.0, scenario='three_radars')
+    sim = simulate(root / 'bag', seed=5, duration_s=180.0, scenario='three_radars')
     params = yaml.safe_load(sim.paths.params.read_text())
     params['/**']['ros__parameters']['hypotheses'] = {'min_passes': 2}
     path = root / 'params_two_passes.yaml'

@@ -347,7 +347,9 @@ def sample_candidates(templates: ScatterTemplates, frame: I64, obj: I64, ref_xy:
     # rigid body: v_ref along the heading + omega x r, plus the wheel / limb motion
     vx = v * c - w * dy + c * rel_vx
     vy = v * s + w * dx + s * rel_vx
-    vz = rel_vz
+    # on a slope the body climbs as it moves: every point's height follows the road under
+    # it, so it rises by the gradient along its own horizontal motion
+    vz = rel_vz + ground_slope[0] * vx + ground_slope[1] * vy
     # aspect: bird's-eye direction from the point to the radar, in the vehicle frame
     tx, ty = radar_xy[0] - px, radar_xy[1] - py
     norm = np.maximum(np.hypot(tx, ty), 1e-6)

@@ -66,15 +66,19 @@ def test_radial_velocity_is_the_rigid_body_projection(baseline_sim: SimulationSu
     yaw, speed = z['vehicle_yaw_rad'][frame], z['vehicle_speed_mps'][frame]
     omega = z['vehicle_yaw_rate_rps'][frame]
     d = world[:, :2] - ref[:, :2]
-    velocity = np.column_stack([speed * np.cos(yaw) - omega * d[:, 1],
-                                speed * np.sin(yaw) + omega * d[:, 0], np.zeros(yaw.size)])
+    vx = speed * np.cos(yaw) - omega * d[:, 1]
+    vy = speed * np.sin(yaw) + omega * d[:, 0]
+    # on the road's gradient the car climbs as it moves (0.4-0.6 % at the baseline site)
+    slope_x, slope_y = get_scenario('baseline').site.slope
+    assert slope_x or slope_y
+    velocity = np.column_stack([vx, vy, slope_x * vx + slope_y * vy])
     los = world - translation
     los /= np.linalg.norm(los, axis=1, keepdims=True)
     predicted = np.sum(velocity * los, axis=1)
     v_true = z['radial_velocity_true_mps'][rigid]
     assert rigid.sum() > 500
-    # small residue: road gradient (vertical velocity) and float32 storage
-    assert np.max(np.abs(v_true - predicted)) < 0.05
+    # float32 storage only
+    assert np.max(np.abs(v_true - predicted)) < 1e-3
     assert np.any(predicted > 1.0) and np.any(predicted < -1.0)
     wheels = cal & (kinds == KIND_NAMES.index('wheel'))
     spread = np.abs(z['radial_velocity_true_mps'][wheels])
