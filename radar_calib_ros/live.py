@@ -797,11 +797,15 @@ def _unused_path(path: Path) -> Path:
 
 def _encode_samples(builder: RecordingBuilder, config: CalibConfig,
                     store: Any) -> Iterator[tuple[str, str, int, object]]:
-    """(topic, msgtype, stamp, message) of every buffered sample, in stamp order.
+    """(topic, msgtype, record time, message) of every buffered sample, in stamp order.
 
     Topics are the configured (relative) names with a leading slash, which the offline
-    tool matches against the same parameters file.
+    tool matches against the same parameters file. The record time is when the node
+    received the message (its header stamp where that is not known), as ``ros2 bag
+    record`` would have written it: the offline tool's recorder's-clock checks (radar
+    stamps seconds off the poses', a radar clock jump) then see what the node saw.
     """
+    radar_received, pose_received = builder.receipt_times()
     radar_topic = '/' + config.radar_topic.lstrip('/')
     navsat_topic = '/' + config.navsat_topic.lstrip('/')
     odom_topic = '/' + config.odom_topic.lstrip('/')
@@ -811,17 +815,20 @@ def _encode_samples(builder: RecordingBuilder, config: CalibConfig,
             msg = msgs.encode_pointcloud(store, sample.stamp_ns, config.radar.frame_id,
                                          sample.positions_m, sample.radial_velocity_mps,
                                          dtype=np.float64, velocity_field=velocity_field)
-            yield radar_topic, msgs.POINTCLOUD2, sample.stamp_ns, msg
+            yield (radar_topic, msgs.POINTCLOUD2,
+                   radar_received.get(sample.stamp_ns, sample.stamp_ns), msg)
         elif isinstance(sample, FixSample):
             msg = msgs.encode_navsatfix(store, sample.stamp_ns, 'gnss', sample.lat_deg,
                                         sample.lon_deg, sample.alt_m, status=sample.status,
                                         position_sigma_m=sample.position_sigma_m)
-            yield navsat_topic, msgs.NAVSATFIX, sample.stamp_ns, msg
+            yield (navsat_topic, msgs.NAVSATFIX,
+                   pose_received.get(sample.stamp_ns, sample.stamp_ns), msg)
         else:
             msg = msgs.encode_odometry(store, sample.stamp_ns, config.world.frame_id,
                                        'base_link', sample.position_m, sample.quaternion_xyzw,
                                        sample.velocity_body_mps, sample.yaw_rate_rps)
-            yield odom_topic, msgs.ODOMETRY, sample.stamp_ns, msg
+            yield (odom_topic, msgs.ODOMETRY,
+                   pose_received.get(sample.stamp_ns, sample.stamp_ns), msg)
 
 
 def replace_config(config: CalibConfig, **sections: Any) -> CalibConfig:

@@ -235,6 +235,17 @@ class RecordingBuilder:
         copy._nbytes = self._nbytes
         return copy
 
+    def receipt_times(self) -> tuple[dict[int, int], dict[int, int]]:
+        """When the buffered radar and pose messages were received, by header stamp:
+        ({radar stamp: received}, {pose stamp: received}) [ns], the first receipt of a stamp
+        (a scan published in pieces shares one). A saved bag takes them as record times, so
+        that the recorder's-clock checks of ``build`` see there what they saw here."""
+        def first(lags: list[int], received: list[int]) -> dict[int, int]:
+            # reversed, so that the first receipt of a stamp is the one left in the dict
+            return {rec - lag: rec for lag, rec in zip(lags[::-1], received[::-1])}
+        return (first(self._radar_lag, self._radar_received),
+                first(self._pose_lag, self._pose_received))
+
     def samples(self) -> Iterator[RadarFrame | FixSample | OdomSample]:
         """Every buffered sample, in stamp order (radar velocities as received, before
         ``radar.velocity_sign``; fixes with their status and covariance sigmas)."""

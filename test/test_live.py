@@ -209,6 +209,11 @@ def test_the_nodes_clock_names_radar_stamps_off_the_poses(tmp_path: Path, store:
     assert len(builder._pose_lag) == len(builder._pose_received) == fixes + odoms
     recording = builder.snapshot().build()
     assert recording.counters['radar_stamp_offset_ms'] == pytest.approx(7000, abs=10)
+    # a saved bag carries the receipts as record times: offline, the same note
+    saved = live.save_recording(tmp_path / 'saved')
+    assert saved.success, saved.message
+    again = read_recording(tmp_path / 'saved', live.config)
+    assert again.counters['radar_stamp_offset_ms'] == pytest.approx(7000, abs=10)
     consistent(live)
 
 
