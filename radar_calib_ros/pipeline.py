@@ -354,6 +354,11 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      f'rest){where}: those poses, decimetres to metres off, were left out with '
                      'the radar frames they would have placed. Check the correction link, or '
                      'drive those passes again.')
+    malformed = recording.counters.get('radar_messages_malformed', 0)
+    if malformed:
+        notes.append(f'{malformed} radar message{"s" if malformed != 1 else ""} could not be '
+                     'decoded (truncated or malformed PointCloud2) and '
+                     f'{"were" if malformed != 1 else "was"} skipped; check the driver.')
     merged = recording.counters.get('radar_messages_merged', 0)
     if merged:
         notes.append(f'{merged} radar messages shared their header stamp with another and were '

@@ -251,7 +251,9 @@ def read_recording(path: str | Path, config: CalibConfig, *,
     BagReadError
         Missing path, not a bag, corrupt metadata or storage, unknown or ambiguous topics.
     DecodeError
-        A radar message without the fields we need (prefixed with its topic and stamp).
+        No radar message of the topic could be decoded: the first one's problem (prefixed
+        with its topic and stamp). Single malformed messages among good ones are skipped,
+        counted (``radar_messages_malformed``) and named in the calibration's notes.
     InsufficientDataError
         No radar frame or no usable vehicle pose (from ``RecordingBuilder.build``).
     """
@@ -268,15 +270,29 @@ def read_recording(path: str | Path, config: CalibConfig, *,
         total = sum(c.msgcount for c in connections)
         velocity_field = config.radar.velocity_field
         done = 0
+        first_error: DecodeError | None = None
         for connection, received_ns, msg in _messages(reader, connections, path):
-            _add_message(builder, roles[connection.topic], connection, msg, velocity_field)
-            builder.note_receipt(roles[connection.topic], msgs.stamp_ns(msg.header),
-                                 received_ns)
+            try:
+                _add_message(builder, roles[connection.topic], connection, msg,
+                             velocity_field)
+            except DecodeError as err:
+                # One malformed cloud in a long drive (a driver's short write) costs one
+                # frame, as in the node; a topic none of whose clouds decode is refused below
+                builder.counters['radar_messages_malformed'] += 1
+                first_error = first_error or err
+            else:
+                builder.note_receipt(roles[connection.topic], msgs.stamp_ns(msg.header),
+                                     received_ns)
             done += 1
             if progress is not None and done % _PROGRESS_EVERY == 0:
                 progress(done, total)
         if progress is not None:
             progress(done, total)
+    if first_error is not None:
+        if builder.n_frames == 0:
+            raise first_error
+        _LOG.warning('%d radar messages could not be decoded and were skipped; the first: %s',
+                     builder.counters['radar_messages_malformed'], first_error)
     return builder.build()
 
 

@@ -1,6 +1,7 @@
 """io.bag: write/read round trips in both storages, topic selection, and every bad input."""
 from __future__ import annotations
 
+import logging
 import math
 import shutil
 from collections.abc import Iterator
@@ -345,6 +346,26 @@ def test_truncated_pointcloud(tmp_path: Path, ts: Any) -> None:
     with pytest.raises(DecodeError, match=r'^/radar/points \(stamp \d+ ns\): PointCloud2 data '
                        'has 155 bytes, fewer than width 10 x height 1 x point_step 16 = 160'):
         read_recording(bag, CalibConfig())
+
+
+def test_a_truncated_cloud_among_good_ones_is_skipped_and_named(
+        tmp_path: Path, ts: Any, caplog: pytest.LogCaptureFixture) -> None:
+    """One short write in a drive costs its frame, as in the node, not the whole bag."""
+    s = scene(seed=6)
+    items = list(bag_messages(ts, s))
+    bad = m.encode_pointcloud(ts, T0 + 5_000_000_000, 'radar', np.ones((10, 3)), np.ones(10))
+    bad.data = bad.data[:-4]
+    write_bag(tmp_path / 'bag', items + [('/radar/points', m.POINTCLOUD2,
+                                          T0 + 5_000_000_000, bad)], typestore=ts)
+    with caplog.at_level(logging.WARNING):
+        recording = read_recording(tmp_path / 'bag', CalibConfig())
+    assert recording.frame_stamps_ns.size == len(s['frames'])
+    assert recording.counters['radar_messages_malformed'] == 1
+    assert '1 radar messages could not be decoded and were skipped; the first: /radar/' \
+        'points' in caplog.text and 'fewer than width 10' in caplog.text
+    from radar_calib_ros.pipeline import _data_notes
+    assert any('1 radar message could not be decoded' in n
+               for n in _data_notes(recording, []))
 
 
 def test_pointcloud_without_velocity(tmp_path: Path, ts: Any) -> None:
