@@ -22,7 +22,7 @@ from radar_calib_ros.errors import ConfigError
 
 
 def _p(default: Any, doc: str, *, lo: float | None = None, hi: float | None = None,
-       choices: tuple[str, ...] | None = None, read_only: bool = False) -> Any:
+       choices: tuple[str | float, ...] | None = None, read_only: bool = False) -> Any:
     """Declare a parameter field: default, description and constraint side by side."""
     meta = {'doc': doc, 'lo': lo, 'hi': hi, 'choices': choices, 'read_only': read_only}
     return field(default=default, metadata=meta)
@@ -34,7 +34,7 @@ class RadarConfig:
     frame_id: str = _p('radar', 'child frame id of the published calibration')
     velocity_sign: float = _p(
         1.0, 'sign that makes v_r positive for targets moving away (-1 if the radar '
-        'reports approach as positive)', choices=None, lo=-1.0, hi=1.0)
+        'reports approach as positive)', choices=(-1.0, 1.0), lo=-1.0, hi=1.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -310,7 +310,9 @@ class CalibConfig:
             if f.name in sections:
                 section_cls = type(getattr(cls(), f.name))
                 kwargs[f.name] = section_cls(**sections[f.name])
-        return cls(**kwargs, explicit=frozenset(flat))
+        config = cls(**kwargs, explicit=frozenset(flat))
+        _check_utm_epsg(config.world.epsg)
+        return config
 
     @classmethod
     def from_file(cls, path: str | Path, node_name: str | None = None) -> CalibConfig:
@@ -332,6 +334,24 @@ class CalibConfig:
         return obj
 
 
+def _check_utm_epsg(code: int) -> None:
+    """ConfigError unless ``code`` is 0 or an EPSG code of a UTM zone (any datum).
+
+    Why: the world frame is UTM by contract; another projection (degrees of EPSG:4326, a
+    polar stereographic zone) would be written as if it were easting and northing."""
+    if not code:
+        return
+    import pyproj  # here, not at the top: the parameters are read where pyproj is not needed
+    try:
+        crs = pyproj.CRS.from_epsg(code)
+    except pyproj.exceptions.CRSError as err:
+        raise ConfigError(f'parameter \'world.epsg\' = {code} is not a known EPSG code') from err
+    if crs.utm_zone is None:
+        raise ConfigError(f'parameter \'world.epsg\' = {code} ({crs.name}) is not a UTM zone; '
+                          'the world frame is UTM (e.g. 32632, WGS 84 / UTM zone 32N), or 0 '
+                          'for the zone of the first vehicle fix')
+
+
 @dataclass(frozen=True, slots=True)
 class ParameterSpec:
     """One parameter: name, type, default, description and constraint."""
@@ -342,7 +362,7 @@ class ParameterSpec:
     doc: str
     lo: float | None
     hi: float | None
-    choices: tuple[str, ...] | None
+    choices: tuple[str | float, ...] | None
     read_only: bool
 
     def check(self, value: Any) -> Any:
@@ -472,6 +492,6 @@ def default_params_yaml() -> str:
         if spec.lo is not None or spec.hi is not None:
             bound = f' [{spec.lo}, {spec.hi}]'
         if spec.choices:
-            bound = f' {{{", ".join(spec.choices)}}}'
+            bound = f' {{{", ".join(map(str, spec.choices))}}}'
         lines.append(f'{indent}{key}: {value}  # {spec.doc}{bound}')
     return '\n'.join(lines) + '\n'

@@ -103,7 +103,7 @@ def parameter_descriptor(spec: ParameterSpec) -> ParameterDescriptor:
             descriptor.integer_range = [IntegerRange(
                 from_value=int(spec.lo), to_value=int(spec.hi), step=1)]
     if spec.choices:
-        descriptor.additional_constraints = 'one of: ' + ', '.join(spec.choices)
+        descriptor.additional_constraints = 'one of: ' + ', '.join(map(str, spec.choices))
     return descriptor
 
 

@@ -52,10 +52,22 @@ def test_int_is_accepted_for_float_but_not_the_reverse() -> None:
     # "quality:" with nothing under it in YAML
     ({'quality': None}, "parameter group 'quality' is empty: give its parameters under it"),
     ({'qualty': None}, "unknown parameter 'qualty'"),
+    # a sign, not a scale
+    ({'radar.velocity_sign': 0.5}, r"'radar.velocity_sign' = 0.5 is not one of \[-1.0, 1.0\]"),
+    # the world frame is UTM: degrees or a polar zone would be written as easting/northing
+    ({'world.epsg': 4326}, r"'world.epsg' = 4326 \(WGS 84\) is not a UTM zone"),
+    ({'world.epsg': 32661}, r"'world.epsg' = 32661 \(WGS 84 / UPS North \(N,E\)\) is not a UTM"),
+    ({'world.epsg': 99999}, "'world.epsg' = 99999 is not a known EPSG code"),
 ])
 def test_bad_values_are_named(params: dict[str, object], match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         CalibConfig.from_mapping(params)
+
+
+def test_utm_zones_of_any_datum_and_both_signs_are_accepted() -> None:
+    for code in (32632, 32756, 25832, 26915):
+        assert CalibConfig.from_mapping({'world.epsg': code}).world.epsg == code
+    assert CalibConfig.from_mapping({'radar.velocity_sign': -1}).radar.velocity_sign == -1.0
 
 
 def test_params_file_node_keys(tmp_path: Path) -> None:
