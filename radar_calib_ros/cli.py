@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -17,7 +18,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.errors import CalibrationError, exit_code
+from radar_calib_ros.errors import CalibrationError, ResultFileError, exit_code
 
 _LOG = logging.getLogger('radar_calib_ros')
 
@@ -122,6 +123,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     if args.all_radars:
         return cmd_calibrate_all_radars(args, out)
     _refuse_ambiguous_radar(args.bag, config)
+    _check_writable(args.output, args.json)
     _warn_frame_id(args.bag, config)
     progress = _Progress(args.progress if args.progress is not None else sys.stderr.isatty())
     result, read_s = calibrate_bag(args.bag, config, progress=progress)
@@ -204,6 +206,24 @@ def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
             f'the bag has {len(topics)} radar topics ({", ".join(topics)}) and the parameters '
             'name none: calibrate them all with `radar-calib calibrate BAG --all-radars`, or '
             'set radar_topic to one of them')
+
+
+def _check_writable(*paths: str | None) -> None:
+    """ResultFileError (exit 2) before the work, not a traceback after it, when a result
+    could not be written: the nearest existing folder of each path must be a writable one
+    (the missing ones below it are created when the result is written)."""
+    for path in paths:
+        if not path:
+            continue
+        target = Path(path).absolute()
+        if target.is_dir():
+            raise ResultFileError(f'cannot write the result to {path!r}: it is a directory')
+        folder = target.parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+            raise ResultFileError(f'cannot write the result to {path!r}: {str(folder)!r} is '
+                                  'not a writable folder')
 
 
 def _warn_frame_id(bag: str, config: CalibConfig) -> None:
@@ -443,6 +463,9 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     except KeyboardInterrupt:
         print('error: interrupted', file=sys.stderr)
         return 130
+    except OSError as err:  # a result, report or bag that cannot be written after all
+        print(f'error: cannot write {err.filename!r}: {err.strerror or err}', file=sys.stderr)
+        return 2
     except (ArithmeticError, ValueError) as err:  # numpy's LinAlgError is a ValueError
         # A numerical failure on data nothing above foresaw (a clock jump once made the
         # tracking filter's covariance indefinite): the data cannot be calibrated as they

@@ -25,7 +25,7 @@ class DecodeError(CalibrationError):
 
 
 class ResultFileError(CalibrationError):
-    """A result file cannot be read or is not a valid calibration."""
+    """A result file cannot be read or written, or is not a valid calibration."""
 
 
 class InsufficientDataError(CalibrationError):

@@ -54,6 +54,32 @@ def test_a_numerical_failure_is_one_line_and_exit_1(
     assert not (tmp_path / 'r.yaml').exists()
 
 
+def test_an_unwritable_result_path_exits_2_before_or_after_the_work(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before the work where it can be told (a file where a folder should be), and in one
+    line, not a traceback, where only the write finds out."""
+    from radar_calib_ros import cli
+
+    (tmp_path / 'file').write_text('')
+    monkeypatch.setattr(cli, '_refuse_ambiguous_radar', lambda *args: None)
+    monkeypatch.setattr(cli, '_warn_frame_id', lambda *args: None)
+    worked: list[bool] = []
+    monkeypatch.setattr(cli, 'calibrate_bag', lambda *a, **k: worked.append(True))
+    for output in (tmp_path / 'file' / 'r.yaml', tmp_path):
+        code, _, err = _run(['calibrate', str(tmp_path), '--output', str(output)], capsys)
+        assert code == 2 and err.startswith("error: cannot write the result to ")
+        assert 'Traceback' not in err and err.count('\n') == 1 and not worked
+
+    def fail_to_write(*args: object, **kwargs: object) -> None:
+        raise FileNotFoundError(2, 'No such file or directory', '/proc/x')
+
+    monkeypatch.setattr(cli, 'calibrate_bag', fail_to_write)
+    code, _, err = _run(['calibrate', str(tmp_path), '--output', str(tmp_path / 'r.yaml')],
+                        capsys)
+    assert code == 2 and err == "error: cannot write '/proc/x': No such file or directory\n"
+
+
 def test_bad_params_file_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     params = tmp_path / 'p.yaml'
     params.write_text('/**:\n  ros__parameters:\n    vehicle: {lenght: 4.0}\n')
