@@ -354,6 +354,12 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      f'rest){where}: those poses, decimetres to metres off, were left out with '
                      'the radar frames they would have placed. Check the correction link, or '
                      'drive those passes again.')
+    lag_ms = recording.counters.get('fix_lag_ms')
+    if lag_ms:
+        notes.append(f'The NavSatFix stamps lag the Odometry\'s by {lag_ms} ms (seen where the '
+                     'vehicle turned or changed speed): each fix was taken at its stamp minus '
+                     'that. Check how the GNSS driver stamps its fixes (at the epoch, not at '
+                     'output).')
     malformed = recording.counters.get('radar_messages_malformed', 0)
     if malformed:
         notes.append(f'{malformed} radar message{"s" if malformed != 1 else ""} could not be '

@@ -361,6 +361,15 @@ class RecordingBuilder:
             v_level = _level_twist(q, yaw_true, v_body)
             rate = np.array([o.yaw_rate_rps for o in odoms], np.float64)
             to = (o_stamps - stamps[0]) * 1e-9
+            if self._fixes:
+                lag_s = _fix_lag(t, positions, to, yaw_true, v_level)
+                if lag_s:
+                    # the fix stamped t shows where the vehicle was at t - lag
+                    self.counters['fix_lag_ms'] = int(round(1000.0 * lag_s))
+                    _LOG.warning('the NavSatFix stamps lag the Odometry\'s by %.0f ms: the '
+                                 'fixes are taken at their stamp minus that', 1000.0 * lag_s)
+                    stamps = stamps - int(round(lag_s * 1e9))
+                    to = to + lag_s
             yaw_true_at = _interp_angle(t, to, yaw_true)
             measured = _position_velocities(t, positions)
             # The checks differentiate over +-1 s, not the +-0.2 s the velocities use: a
@@ -616,6 +625,76 @@ def _position_velocities(t: F64, positions: F64, half_span_s: float = 0.2) -> F6
     """(n, k) velocities of positions (n, k) by central differences (``_finite_difference``)."""
     return np.column_stack([_finite_difference(t, positions[:, i], half_span_s)
                             for i in range(positions.shape[1])])
+
+
+#: Latency of the fixes against the Odometry looked for [s], its grid step [s], the
+#: smallest worth correcting [s] (a few centimetres of travel at urban speed), and how many
+#: standard errors it must stand clear of zero.
+_FIX_LAG_MAX_S = 0.5
+_FIX_LAG_STEP_S = 0.01
+_FIX_LAG_MIN_S = 0.02
+_FIX_LAG_SIGMAS = 5.0
+
+
+def _fix_lag(t: F64, positions: F64, to: F64, yaw: F64, v_level: F64) -> float:
+    """Seconds by which the fixes' stamps lag the Odometry's (0.0 when the data do not
+    show one clearly).
+
+    Why: a GNSS receiver that stamps a fix when it outputs it, not at its epoch, is 50-200
+    ms late, while the INS beside it is on time. The fixes then place the vehicle that
+    far behind itself along its path, an offset that turns with every pass and that no
+    radar clock offset can take up (an independent recording: 0.73 m along the boresight,
+    reported at 0.17 m, where the same data on one clock gave 0.34 m). The lag shows
+    wherever the vehicle accelerates or turns: the fixes' velocity follows the Odometry's
+    that much later. It is found on a grid of lags by least squares, refined by a parabola,
+    and taken when it is at least ``_FIX_LAG_MIN_S`` and ``_FIX_LAG_SIGMAS`` standard
+    errors (the fixes' velocities over +-0.2 s are correlated over that span, which the
+    error counts). A twist that does not describe the motion at all (zero, another frame,
+    a compass heading) shows no clear minimum and is left to ``_checked_twist``.
+    """
+    if t.size < 50 or to.size < 50:
+        return 0.0
+    v_fix = _position_velocities(t, positions[:, :2])
+    c, s = np.cos(yaw), np.sin(yaw)
+    v_odom = np.column_stack([c * v_level[:, 0] - s * v_level[:, 1],
+                              s * v_level[:, 0] + c * v_level[:, 1]])
+    margin = _FIX_LAG_MAX_S + 0.2
+    use = ((np.hypot(v_fix[:, 0], v_fix[:, 1]) > _TWIST_CHECK_SPEED_MPS)
+           & (t - margin > to[0]) & (t + margin < to[-1]))
+    if int(use.sum()) < 50:
+        return 0.0
+    tu, vu = t[use], v_fix[use]
+
+    def odom_at(tq: F64) -> F64:
+        return np.column_stack([np.interp(tq, to, v_odom[:, i]) for i in range(2)])
+
+    lags = np.arange(-_FIX_LAG_MAX_S, _FIX_LAG_MAX_S + 1e-9, _FIX_LAG_STEP_S)
+    cost = np.array([np.mean((vu - odom_at(tu - lag)) ** 2) for lag in lags])
+    k = int(np.argmin(cost))
+    speed = float(np.median(np.hypot(vu[:, 0], vu[:, 1])))
+    tolerance = max(_TWIST_TOLERANCE_MPS, _TWIST_TOLERANCE_FRACTION * speed)
+    if k in (0, lags.size - 1) or cost[k] > tolerance ** 2:
+        return 0.0
+    curvature = cost[k - 1] - 2.0 * cost[k] + cost[k + 1]
+    if curvature <= 0.0:
+        return 0.0
+    lag = float(lags[k] + 0.5 * _FIX_LAG_STEP_S * (cost[k - 1] - cost[k + 1]) / curvature)
+    # standard error of a one-parameter least squares: residual variance over the summed
+    # squared sensitivity (the Odometry's acceleration), with samples 0.4 s apart independent
+    acc = np.column_stack([np.gradient(odom_at(tu - lag)[:, i], tu) for i in range(2)])
+    residual = vu - odom_at(tu - lag)
+    rate_hz = (tu.size - 1) / max(float(tu[-1] - tu[0]), 1e-9)
+    correlated = max(1.0, 0.4 * rate_hz)
+    information = float(np.sum(acc ** 2)) / correlated
+    if information <= 0.0:
+        return 0.0
+    se = math.sqrt(float(np.mean(residual ** 2)) / information)
+    if abs(lag) < _FIX_LAG_MIN_S or abs(lag) < _FIX_LAG_SIGMAS * se:
+        _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms: not taken', 1e3 * lag,
+                   1e3 * se)
+        return 0.0
+    _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms', 1e3 * lag, 1e3 * se)
+    return lag
 
 
 def _checked_twist(t: F64, positions: F64, measured: F64, coarse: F64, twist_world: F64,

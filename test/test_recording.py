@@ -60,6 +60,53 @@ def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: flo
     return builder, frame, omega
 
 
+@pytest.mark.parametrize('lag_ms', [0, 100, -60])
+def test_fixes_stamped_late_against_the_odometry_are_put_back_in_time(lag_ms: int) -> None:
+    """A receiver that stamps its fixes when it outputs them: each fix shows where the
+    vehicle was lag_ms before its stamp, the Odometry is on time. On a drive that turns and
+    brakes the lag is found, the fixes are taken at their stamp minus it, and a note says
+    so; fixes on time are left alone."""
+    from scipy.integrate import cumulative_trapezoid
+
+    from radar_calib_ros.pipeline import _data_notes
+
+    frame = LocalFrame.at(LAT0, LON0)
+    t = np.arange(0.0, 60.0, 0.05)
+    # speed 8-14 m/s (braking and accelerating), heading turning back and forth
+    speed = 11.0 + 3.0 * np.sin(2 * np.pi * t / 12.0)
+    yaw = 0.6 * np.sin(2 * np.pi * t / 20.0)
+    rate = np.gradient(yaw, t)
+    xy = cumulative_trapezoid(np.column_stack([speed * np.cos(yaw), speed * np.sin(yaw)]),
+                              t, axis=0, initial=0.0)
+    truth_at = (t - lag_ms / 1000.0)
+    fix_xy = np.column_stack([np.interp(truth_at, t, xy[:, i]) for i in range(2)])
+    lat, lon, alt = frame.local_to_geodetic(np.column_stack([fix_xy, np.zeros_like(t)]))
+    yaw_true = yaw + frame.local_convergence_rad(lat, lon)
+    rng = np.random.default_rng(3)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i, ti in enumerate(t):
+        stamp = T0 + int(round(ti * 1e9))
+        noisy = frame.local_to_geodetic(np.array([[*fix_xy[i] + rng.normal(0, 0.02, 2), 0.0]]))
+        builder.add_fix(FixSample(stamp, float(noisy[0][0]), float(noisy[1][0]),
+                                  float(noisy[2][0]), 2, (0.02, 0.03)))
+        builder.add_odometry(_odom(stamp, yaw_true[i], speed[i], rate[i]))
+    rec = builder.build()
+    notes = ' '.join(_data_notes(rec, []))
+    if lag_ms == 0:
+        assert 'fix_lag_ms' not in rec.counters and 'lag the Odometry' not in notes
+        return
+    assert rec.counters['fix_lag_ms'] == pytest.approx(lag_ms, abs=5)
+    assert f'NavSatFix stamps lag the Odometry\'s by {rec.counters["fix_lag_ms"]} ms' in notes
+    # the positions now sit where the vehicle was at their (new) stamps
+    tv = (rec.vehicle.stamps_ns - T0) * 1e-9
+    inner = (tv > 2.0) & (tv < 57.0)
+    truth = np.column_stack([np.interp(tv, t, xy[:, i]) for i in range(2)])
+    err = np.hypot(*(rec.vehicle.positions_m[inner, :2] - rec.vehicle.positions_m[0, :2]
+                     - (truth[inner] - truth[0])).T)
+    assert np.median(err) < 0.1
+
+
 @pytest.mark.parametrize('convention', ['compass', 'identity'])
 def test_an_odometry_orientation_unlike_the_travel_is_read_or_replaced(
         convention: str) -> None:
