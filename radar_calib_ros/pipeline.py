@@ -103,6 +103,27 @@ def track_targets(recording: Recording, config: CalibConfig, *,
     return TrackedTargets(index, track_id)
 
 
+def _ground_plane(recording: Recording, tracked: TrackedTargets,
+                  config: CalibConfig) -> tuple[GroundPlane, str | None]:
+    """Stage 4 on the targets ``ground.targets`` names; with 'moving', kept clear of clutter
+    that moves (``ground_plane.fit_road_plane``), with a note where it was."""
+    positions = recording.targets.positions_m
+    if config.ground.targets != 'moving':
+        return ground_plane.fit_ground_plane(positions, config.ground), None
+    frame_s = (recording.frame_stamps_ns[recording.targets.frame_index[tracked.target_index]]
+               - recording.frame_stamps_ns[0]) * 1e-9
+    ground, clutter = ground_plane.fit_road_plane(positions[tracked.target_index], frame_s,
+                                                  tracked.track_id, config.ground)
+    if clutter is None:
+        return ground, None
+    note = (f'{100 * clutter.share:.0f} % of the moving targets did not move as road users do '
+            '(rain, snow or spray near the radar, or other clutter that moves) and tilted the '
+            f'ground plane by {clutter.tilt_deg:.1f} deg: the plane was fitted to the road '
+            'users\' tracks alone.')
+    _LOG.warning('%s', note)
+    return ground, note
+
+
 #: Step of the clock offsets tried when the hypotheses do not agree at the given one [s].
 _CLOCK_STEP_S = 0.05
 
@@ -413,9 +434,7 @@ def _run_calibration(recording: Recording, config: CalibConfig,
     if tracked.target_index.size == 0:
         raise InsufficientDataError('moving', 'no moving radar target in the recording')
     with stage('ground_plane'):
-        plane_points = (targets.positions_m[tracked.target_index]
-                        if config.ground.targets == 'moving' else targets.positions_m)
-        ground = ground_plane.fit_ground_plane(plane_points, config.ground)
+        ground, clutter_note = _ground_plane(recording, tracked, config)
     with stage('track'):
         tracks = tuple(track.track_clusters(recording, tracked, ground, config.track))
     with stage('hypotheses'):
@@ -439,6 +458,8 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                      f'to {-config.radar.velocity_sign:g} to say so.')
         _LOG.warning('%s', flip_note)
     corrections = [flip_note] if sign < 0 else []
+    if clutter_note:
+        corrections.insert(0, clutter_note)
     folding = velocity_folding.detect_folding(current, recording, tracked.target_index, config)
     if folding is not None:
         recording, folding = velocity_folding.unfold_radial_velocities(
