@@ -103,6 +103,35 @@ def track_targets(recording: Recording, config: CalibConfig, *,
     return TrackedTargets(index, track_id)
 
 
+#: Road users' targets per frame (median over the tracks' frames) at or below which the
+#: radar is too sparse for the paper's clustering defaults (three targets over three
+#: frames, tracks of eight frames): an independent 10 Hz radar with ~1.5 targets on a car
+#: was refused with its defaults and calibrated with the settings the hint names.
+_SPARSE_TARGETS_PER_FRAME = 1.5
+
+
+def _sparse_radar_hint(recording: Recording, tracked: TrackedTargets,
+                       config: CalibConfig) -> str | None:
+    """What to set when the radar reports so few targets per road user that the default
+    clustering and tracking break its tracks up; None when it does not."""
+    in_track = tracked.track_id >= 0
+    if not in_track.any():
+        return None
+    frames = recording.targets.frame_index[tracked.target_index[in_track]]
+    _, per_frame = np.unique(np.column_stack([tracked.track_id[in_track], frames]), axis=0,
+                             return_counts=True)
+    median = float(np.median(per_frame))
+    if median > _SPARSE_TARGETS_PER_FRAME:
+        return None
+    cl, assoc, hyp = config.cluster, config.associate, config.hypotheses
+    return (f'The radar reports few targets per road user (a median of {median:g} a frame in '
+            'its tracks): for such a sparse radar try cluster.min_samples: '
+            f'{max(1, min(cl.min_samples, 2))}, cluster.accumulate_frames: '
+            f'{max(cl.accumulate_frames, 6)}, associate.min_track_frames: '
+            f'{min(assoc.min_track_frames, 5)} and hypotheses.min_track_frames: '
+            f'{min(hyp.min_track_frames, 6)}.')
+
+
 def _ground_plane(recording: Recording, tracked: TrackedTargets,
                   config: CalibConfig) -> tuple[GroundPlane, str | None]:
     """Stage 4 on the targets ``ground.targets`` names; with 'moving', kept clear of clutter
@@ -438,7 +467,13 @@ def _run_calibration(recording: Recording, config: CalibConfig,
     with stage('track'):
         tracks = tuple(track.track_clusters(recording, tracked, ground, config.track))
     with stage('hypotheses'):
-        hyps, selection = _hypotheses(tracks, recording, ground, config)
+        try:
+            hyps, selection = _hypotheses(tracks, recording, ground, config)
+        except InsufficientDataError as err:
+            hint = _sparse_radar_hint(recording, tracked, config)
+            if hint is None or type(err) is not InsufficientDataError:
+                raise
+            raise InsufficientDataError(err.stage, f'{err.reason.rstrip(".")}. {hint}') from err
     stage_extrinsics = {'hypotheses': selection.extrinsics}
     current = selection.extrinsics
     if config.refine.polygon:
@@ -478,6 +513,15 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                                                   config)
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
+        held = refinement.diagnostics.get('time_offset_held_sigma_s')
+        if held is not None:
+            corrections.append(
+                'The drives did not show the radar\'s clock offset (the vehicle kept its '
+                'speed through the view, where an offset only moves it along its own travel; '
+                f'the first fit left it uncertain by {held:.2f} s): it was held at '
+                f'{current.time_offset_s:+.3f} s on top of sync.time_offset. Set '
+                'sync.time_offset if the clocks are known to differ, or drive through the '
+                'view with a stop or a turn to measure it.')
         max_off = config.sync.max_time_offset
         if config.sync.estimate_time_offset and abs(current.time_offset_s) > max_off > 0:
             # The bound is a soft prior in the fit: an estimate beyond it means the vehicle

@@ -298,3 +298,30 @@ def test_a_clock_shift_the_final_fit_does_not_confirm_is_not_blamed_on_the_clock
     note = pipeline._shift_note(0.2, -0.0036)
     assert note is not None and '+0.20 s' in note and '-0.004 s' in note
     assert 'vehicle.*' in note
+
+
+def test_a_sparse_radar_refused_at_stage_6_is_told_what_to_set(
+        drive: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A radar with about one target per road user a frame breaks the default clustering's
+    tracks up (an independent recording was refused without a word on why); the failure
+    names the settings that calibrated it. A radar with several targets a frame gets no
+    such hint."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.pipeline import _sparse_radar_hint, run_calibration, track_targets
+
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    assert _sparse_radar_hint(recording, track_targets(recording, config), config) is None
+    # one target in ten kept: what still forms tracks has about one a frame
+    keep = np.random.default_rng(0).random(len(recording.targets)) < 0.1
+    sparse = dataclasses.replace(recording, targets=recording.targets.subset(
+        np.flatnonzero(keep)))
+    hint = _sparse_radar_hint(sparse, track_targets(sparse, config), config)
+    assert hint is not None and 'cluster.min_samples: 2, cluster.accumulate_frames: 6' in hint
+
+    def refuse(*args: Any, **kwargs: Any) -> Any:
+        raise InsufficientDataError('hypotheses', 'no consistent calibration-vehicle track')
+    monkeypatch.setattr(pipeline, '_hypotheses', refuse)
+    with pytest.raises(InsufficientDataError, match=r'vehicle track\. The radar reports few '
+                       r'targets per road user \(a median of 1 a frame'):
+        run_calibration(sparse, config)

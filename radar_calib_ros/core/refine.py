@@ -363,8 +363,9 @@ class _Model:
         # model 22 -> 10 cm) at no cost elsewhere.
         rho = np.hypot(centre_los[:, 0], centre_los[:, 1]) / self.r_ref - 1.0
         if self.range_terms == 'full':
-            range_basis = basis[:, :, :self.n_range].copy()
-            d_range_basis = d_basis[:, :, :self.n_range].copy()
+            columns = range_columns(self.k, 'full')
+            range_basis = basis[:, :, columns]
+            d_range_basis = d_basis[:, :, columns]
         else:
             ca, sa = np.cos(aspect), np.sin(aspect)
             range_basis = np.zeros((basis.shape[0], 3, 1))
@@ -500,10 +501,27 @@ class _Model:
         return r_data, j_data, r_prior, j_prior
 
 
+#: Highest harmonic whose coefficients may drift with range under 'full' range terms.
+#: Which parts of a car show changes slowly with range, and the low orders carry it; with
+#: a slope for every one of order 8 the refit behind ``refine.model_check`` had 17 more
+#: coefficients and its difference from the fit, added to the covariance, was noise (half
+#: the targets of one scene doubled the sigma along the boresight).
+_FULL_RANGE_HARMONICS = 4
+
+
+def range_columns(harmonics: int, range_terms: str) -> I64:
+    """Profile coefficients that get a range slope under 'full' (a_0..a_k, b_1..b_k with
+    k = min(K, ``_FULL_RANGE_HARMONICS``)); empty under 'depth'."""
+    if range_terms != 'full':
+        return np.zeros(0, np.int64)
+    k = min(harmonics, _FULL_RANGE_HARMONICS)
+    return np.concatenate([np.arange(k + 1), harmonics + 1 + np.arange(k)]).astype(np.int64)
+
+
 def n_range_terms(harmonics: int, range_terms: str) -> int:
     """Number of range-slope coefficients after the profile: one for the depth mode, or
-    one per horizontal profile coefficient (a_0..a_K, b_1..b_K)."""
-    return 2 * harmonics + 1 if range_terms == 'full' else 1
+    one per coefficient of ``range_columns``."""
+    return range_columns(harmonics, range_terms).size if range_terms == 'full' else 1
 
 
 def _robust(r: F64, n_targets: int) -> tuple[F64, float]:
@@ -985,6 +1003,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     profile = np.nan_to_num(prior_mean[(7 if estimate_tau else 6):])
     scatter = np.full(3, cfg.position_sigma_m)
     previous: I64 | None = None
+    tau_held: float | None = None
     data: _Selected | None = None
     model: _Model | None = None
     fit: _Fit | None = None
@@ -1030,14 +1049,19 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                 near = int(_gate(est, candidates, track_ids, track_size, accepted, times,
                                  recording, poses, unchecked, first_round=False,
                                  view=view).sum())
-                angle, shift, _ = _change(start, est.rotation, est.translation_m,
-                                          est.time_offset_s)
+                angle, shift, clock = _change(start, est.rotation, est.translation_m,
+                                              est.time_offset_s)
                 why = f'radial velocities off the vehicle\'s motion: {_VELOCITY_SUSPECTS}'
+                if clock > 0.05:
+                    # the vehicle moved along its travel by its speed times that
+                    why = ('a clock offset the drives cannot pin down (set sync.time_offset '
+                           'and sync.estimate_time_offset: false if it is known), or ' + why)
                 where = (f'moving as the vehicle does ({near} lie near it, but with {why})'
                          if near >= _MIN_TARGETS else
-                         f'after the first round moved the estimate {shift:.1f} m and '
-                         f'{math.degrees(angle):.1f} deg from the paper\'s stages\' (what '
-                         f'pulls it away is most likely {why})')
+                         f'after the first round moved the estimate {shift:.1f} m, '
+                         f'{math.degrees(angle):.1f} deg and the clock offset by {clock:.2f} s '
+                         f'from the paper\'s stages\' (what pulls it away is most likely '
+                         f'{why})')
             raise InsufficientDataError(
                 'refine', f'only {index.size} targets within {cfg.gate_m} m of the vehicle '
                 f'box {where}, need at least {_MIN_TARGETS}')
@@ -1045,6 +1069,22 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # and picks the same targets again when the gate barely changes.
         stride = max(1, index.size // _ROUND_TARGETS)
         moved = fit_round(keep, stride)
+        if rounds == 1 and estimate_tau and tau_held is None:
+            assert model is not None and fit is not None
+            tau_sigma = _parameter_sigma(model, fit.x, 6, stride)
+            if tau_sigma > _TAU_HOLD_SIGMA_S:
+                # the drives cannot show the clock offset: hold it where the paper's stages
+                # had it and fit this round again from their estimate
+                tau_held = tau_sigma
+                _LOG.info('the clock offset is not observable here (sigma %.3f s after the '
+                          'first round, which moved it %+.3f s): held at %+.3f s', tau_sigma,
+                          est.time_offset_s - start.time_offset_s, initial.time_offset_s)
+                prior_mean[6], prior_sigma[6] = float(initial.time_offset_s), _TAU_HOLD_S
+                est = Extrinsics(start.rotation, start.translation_m,
+                                 float(initial.time_offset_s))
+                profile = np.nan_to_num(prior_mean[7:])
+                scatter = np.full(3, cfg.position_sigma_m)
+                moved = fit_round(keep, stride)
         _check_not_diverged(start, est, planar=not recording.has_elevation)
         same = previous is not None and np.array_equal(previous, index)
         previous = index
@@ -1126,6 +1166,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             'during the recording (a bumped or loose mount), or its clock drifted. The '
             'uncertainty includes the difference; calibrate each half on its own (cut the '
             'recording) to see which holds.', *diagnostics['advice']]
+    if tau_held is not None:
+        diagnostics['time_offset_held_sigma_s'] = tau_held
     diagnostics.update({
         'range_slopes_m': [float(v) for v in profile[reflection.n_coefficients(harmonics):]],
         'depth_reference_range_m': model.r_ref,
@@ -1253,6 +1295,29 @@ def _pose_block(covariance: F64, estimate_tau: bool) -> F64:
     n = 7 if estimate_tau else 6
     out[:n, :n] = covariance[:n, :n]
     return out
+
+
+#: Clock offsets the first round leaves more uncertain than this are not estimated [s]:
+#: normal drives pin it to 2-4 ms; where the vehicle keeps one speed through the view an
+#: offset only moves it along its own travel, as a longer or shorter car would (the
+#: profile's constant), and the fit slid 0.73 s to where other cars' targets were (an
+#: independent recording of four straight passes: refused). Sigma of the hold [s].
+_TAU_HOLD_SIGMA_S = 0.01
+_TAU_HOLD_S = 1e-6
+
+
+def _parameter_sigma(model: _Model, x: F64, i: int, stride: int = 1) -> float:
+    """1-sigma of parameter ``i`` at ``x`` from the robust normal matrix and the priors, for
+    all the targets when the model holds every ``stride``-th (its priors are weighed down
+    by as much, so the whole matrix scales)."""
+    r, j, _, jp = model.residuals(x, jac=True)
+    assert j is not None and jp is not None
+    w = _robust(r, model.data.index.size)[0]
+    normal = ((j * w[:, None]).T @ j + jp.T @ jp) * stride
+    try:
+        return float(math.sqrt(max(np.linalg.inv(normal)[i, i], 0.0)))
+    except np.linalg.LinAlgError:
+        return math.inf
 
 
 def _anchor(prior_mean: F64, start: Extrinsics, est: Extrinsics) -> F64:

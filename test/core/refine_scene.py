@@ -137,10 +137,11 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
                profile: np.ndarray | None = None, n_passes: int | None = None,
                initial_error: tuple[float, float, float] = (0.3, 1.0, 0.0),
                crawl: bool = False, config: CalibConfig | None = None,
-               grade: float = 0.0) -> Scene:
+               grade: float = 0.0, steady: bool = False) -> Scene:
     """Build a scene; ``initial_error`` = (translation [m], yaw [deg], clock offset [s]);
     ``grade``: the road climbs this much per metre along the boresight, and the car is
-    pitched with it (the fixes then declare RTK's 2-3 cm, which the grade is measured by)."""
+    pitched with it (the fixes then declare RTK's 2-3 cm, which the grade is measured by);
+    ``steady``: every pass at one constant speed (11 m/s), as on a road without lights."""
     rng = np.random.default_rng(seed)
     cfg = config or CalibConfig()
     truth = radar_truth()
@@ -157,6 +158,8 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
         v0 = rng.uniform(8.0, 13.0)
         t = np.arange(0.0, 200.0, 1.0 / POSE_HZ)
         speed = v0 + 2.5 * np.sin(2 * np.pi * t / rng.uniform(6.0, 10.0) + rng.uniform(0, 6))
+        if steady:
+            speed = np.full(t.size, 11.0)
         if crawl and k == 0:
             # a queue: creeping at 0.4 m/s for 40 s in the middle of the first pass
             speed = np.where((t > 4.0) & (t < 44.0), 0.4, speed)
