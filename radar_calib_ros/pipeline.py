@@ -510,7 +510,7 @@ def _run_calibration(recording: Recording, config: CalibConfig,
     if config.refine.final:
         with stage('refine'):
             refinement = refine.refine_extrinsics(current, recording, tracked, selection,
-                                                  config)
+                                                  config, ground_normal=ground.normal)
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
         held = refinement.diagnostics.get('time_offset_held_sigma_s')

@@ -172,8 +172,8 @@ def test_a_clock_offset_fitted_beyond_its_bound_is_noted(drive: Any,
     recording = read_recording(summary.paths.bag, config)
     real = pipeline.refine.refine_extrinsics
 
-    def drifting(*args: Any) -> Any:
-        out = real(*args)
+    def drifting(*args: Any, **kwargs: Any) -> Any:
+        out = real(*args, **kwargs)
         ext = out.extrinsics
         return dataclasses.replace(out, extrinsics=Extrinsics(ext.rotation, ext.translation_m,
                                                               0.42))

@@ -830,3 +830,44 @@ def test_a_clock_offset_the_drives_cannot_show_is_held_not_fitted() -> None:
                              initial_error=(0.3, 1.0, 0.0)))
     assert 'time_offset_held_sigma_s' not in varied.diagnostics
     assert varied.extrinsics.time_offset_s == pytest.approx(0.04, abs=0.01)
+
+
+def test_the_road_plane_holds_the_tilt_the_views_leave_open() -> None:
+    """Seen head-on and tail-on down one arm, the rotation about that arm moves the
+    vehicle's targets little: the road plane of stage 4, as a weak prior, brings the tilt
+    closer and keeps its sigma; where the views are diverse it changes nothing."""
+    for geometry, better in (('head_on', True), ('diverse', False)):
+        scene = make_scene(5, geometry=geometry)
+        up = scene.truth.rotation.T @ np.array([0.0, 0.0, 1.0])    # the road in the sensor
+        free = _run(scene)
+        held = refine.refine_extrinsics(scene.initial, scene.recording, scene.tracked,
+                                        scene.selection, scene.config, ground_normal=up)
+        e_free = errors(free.extrinsics, scene.truth)['rotation']
+        e_held = errors(held.extrinsics, scene.truth)['rotation']
+        if better:
+            assert e_held < e_free - 0.03, (e_held, e_free)
+            assert np.all(np.diag(held.covariance)[:2] <= np.diag(free.covariance)[:2])
+        else:
+            assert abs(e_held - e_free) < 0.005, (e_held, e_free)
+
+
+def test_the_roads_tilt_comes_from_the_vehicles_rtk_altitude() -> None:
+    """One road climbing 4 % north-east: the grade along it, no cross slope; a plane of
+    roads: both slopes; without RTK: straight up."""
+    rng = np.random.default_rng(0)
+    est = Extrinsics(np.eye(3), np.zeros(3))
+    s = rng.uniform(-60, 60, 2000)
+    d = np.array([1.0, 1.0]) / math.sqrt(2.0)
+    one_road = np.column_stack([s * d[0], s * d[1], 0.04 * s + rng.normal(0, 0.02, s.size)])
+    poses = refine._Poses(np.arange(s.size, dtype=float), one_road, np.zeros(s.size),
+                          np.zeros((s.size, 3)), np.zeros(s.size), np.zeros((s.size, 3)),
+                          np.zeros(s.size), 0.5, np.zeros(s.size))
+    up = refine._road_up(poses, est, (0.02, 0.03))
+    np.testing.assert_allclose(up, np.array([-0.04 * d[0], -0.04 * d[1], 1.0])
+                               / math.sqrt(1 + 0.04 ** 2), atol=1e-3)
+    xy = rng.uniform(-50, 50, (2000, 2))
+    plane = np.column_stack([xy, 0.02 * xy[:, 0] - 0.01 * xy[:, 1]])
+    poses = dataclasses.replace(poses, positions_m=plane)
+    up = refine._road_up(poses, est, (0.02, 0.03))
+    np.testing.assert_allclose(up, np.array([-0.02, 0.01, 1.0]) / math.sqrt(1.0005), atol=1e-4)
+    np.testing.assert_array_equal(refine._road_up(poses, est, (1.5, 3.0)), [0.0, 0.0, 1.0])
