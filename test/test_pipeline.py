@@ -325,3 +325,23 @@ def test_a_sparse_radar_refused_at_stage_6_is_told_what_to_set(
     with pytest.raises(InsufficientDataError, match=r'vehicle track\. The radar reports few '
                        r'targets per road user \(a median of 1 a frame'):
         run_calibration(sparse, config)
+
+
+def test_stage_6_thresholds_grow_with_a_long_calibration_vehicle() -> None:
+    """A bus or a truck spreads its reflections over its length: the paper's car-sized
+    agreement thresholds refused a probe's 12 m bus and 16.5 m truck. Scaled with the
+    length where still at their defaults; a car's, or a value the user set, are kept."""
+    from radar_calib_ros.pipeline import _scaled_to_vehicle
+
+    car = CalibConfig()
+    assert _scaled_to_vehicle(car) is car
+    bus = _scaled_to_vehicle(CalibConfig.from_mapping({'vehicle.length': 12.0}))
+    base = car.hypotheses
+    assert bus.hypotheses.max_cluster_rms_m == pytest.approx(2.0 * base.max_cluster_rms_m)
+    assert bus.hypotheses.eps_m == pytest.approx(2.0 * car.hypotheses.eps_m)
+    assert bus.hypotheses.max_rms_m == pytest.approx(2.0 * car.hypotheses.max_rms_m)
+    assert bus.hypotheses.min_passes == car.hypotheses.min_passes
+    own = _scaled_to_vehicle(CalibConfig.from_mapping(
+        {'vehicle.length': 12.0, 'hypotheses.eps_m': 3.5}))
+    assert own.hypotheses.eps_m == 3.5
+    assert own.hypotheses.max_rms_m == pytest.approx(2.0 * car.hypotheses.max_rms_m)
