@@ -46,9 +46,10 @@ class WorldConfig:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SyncConfig:
-    # up to a minute: a radar on GPS or TAI time against a vehicle on UTC is 18, 19 or 37 s off
+    # GPS or TAI time against UTC is 18, 19 or 37 s off; a radar that stamps its uptime
+    # (no time sync) is decades off, and the recorder's clock says by how much
     time_offset: float = _p(0.0, 'seconds added to radar stamps before matching to poses',
-                            lo=-60.0, hi=60.0)
+                            lo=-4.0e9, hi=4.0e9)
     estimate_time_offset: bool = _p(
         True, 'estimate the remaining radar/GNSS clock offset in the final refinement')
     max_time_offset: float = _p(0.25, 'largest clock offset searched for [s]', lo=0.0, hi=2.0)

@@ -345,3 +345,24 @@ def test_stage_6_thresholds_grow_with_a_long_calibration_vehicle() -> None:
         {'vehicle.length': 12.0, 'hypotheses.eps_m': 3.5}))
     assert own.hypotheses.eps_m == 3.5
     assert own.hypotheses.max_rms_m == pytest.approx(2.0 * car.hypotheses.max_rms_m)
+
+
+def test_a_radar_on_its_own_clock_calibrates_with_sync_time_offset(drive: Any) -> None:
+    """A radar that stamps its uptime is 1.75e9 s behind the vehicle: the failure says
+    which sync.time_offset to set, and set (as far as that), the result is the synced
+    one's. Stage 6 used to count passes by radar stamps against the vehicle's away
+    stretches in its own time, and merged every pass with the wrong ones."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.live import replace_config
+    from radar_calib_ros.pipeline import run_calibration
+
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    offset_s = 1_751_355_400.0
+    uptime = dataclasses.replace(recording, frame_stamps_ns=recording.frame_stamps_ns
+                                 - int(offset_s * 1e9))
+    synced = run_calibration(recording, config)
+    shifted = run_calibration(uptime, replace_config(config, **{'sync.time_offset': offset_s}))
+    assert shifted.quality.passes == synced.quality.passes
+    np.testing.assert_allclose(shifted.extrinsics.translation_m,
+                               synced.extrinsics.translation_m, atol=1e-3)

@@ -259,7 +259,10 @@ def count_passes(tracks: Sequence[SmoothedTrack], sensor_xy_m: F64, vehicle: Veh
     (their levelled positions are sensor-relative) plus ``hypotheses.pass_margin_m``."""
     if not tracks:
         return np.zeros((0, 2), np.int64)
-    intervals = np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in tracks], np.int64)
+    # in the vehicle's time, as the stretches it was away from the radar are: a radar on
+    # another clock (its uptime: 1.75e9 s apart) had every pass merged with the wrong ones
+    intervals = pose_stamps_ns(np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in tracks],
+                                        np.int64), config.sync.time_offset)
     reach = max(float(np.hypot(t.positions_m[:, 0], t.positions_m[:, 1]).max())
                 for t in tracks) + config.hypotheses.pass_margin_m
     away = away_stamps_ns(vehicle, sensor_xy_m, reach)
