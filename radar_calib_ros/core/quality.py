@@ -98,7 +98,10 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     n_passes = selection.n_passes or int(passes.shape[0])
     headings = _pass_headings_deg(targets, passes)
     advice = list(refinement.diagnostics.get('advice', [])) if refinement is not None else []
-    advice += _advice(n_passes, headings, sigma, paper.inlier_ratio, misfit,
+    # the advice counts the passes the final fit used where it used more than stage 6
+    # agreed on (a bus: 3 agreed, all 6 were fitted, and 'drive at least 5 times' misled)
+    used = max(n_passes, refinement.n_passes if refinement is not None else 0)
+    advice += _advice(used, headings, sigma, paper.inlier_ratio, misfit,
                       refinement is None, config)
     fitted = (np.asarray(refinement.diagnostics['residuals']['target_index'], np.int64)
               if refinement is not None and 'residuals' in refinement.diagnostics else index)
