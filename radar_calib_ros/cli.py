@@ -168,8 +168,11 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     from radar_calib_ros.result import load_result, write_atomic
     start = time.perf_counter()
     config = _load_config(args.params)
-    calibration = load_result(args.calibration)   # a bad file fails before the bag is read
-    recording = read_recording(args.bag, config)
+    # a bad file fails before the bag is read
+    calibration = load_result(args.calibration, config.radar.frame_id)
+    recording = read_recording(args.bag, config,
+                               radar_topic=_topic_of_frame(args.bag, config,
+                                                           str(calibration.get('radar_frame'))))
     read_s = time.perf_counter() - start
     evaluation = evaluate_recording(recording, calibration, config,
                                     truth=_ground_truth(args.bag))
@@ -206,6 +209,18 @@ def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
             f'the bag has {len(topics)} radar topics ({", ".join(topics)}) and the parameters '
             'name none: calibrate them all with `radar-calib calibrate BAG --all-radars`, or '
             'set radar_topic to one of them')
+
+
+def _topic_of_frame(bag: str, config: CalibConfig, frame_id: str) -> str | None:
+    """The radar topic whose messages are in ``frame_id``, where the parameters name none
+    and the bag holds several radar topics (one radar's result of ``--all-radars``)."""
+    from radar_calib_ros.io.bag import radar_frame_ids
+    if 'radar_topic' in config.explicit:
+        return None
+    frames = radar_frame_ids(bag)
+    matching = [topic for topic, frame in frames.items()
+                if frame.lstrip('/') == frame_id.lstrip('/')]
+    return matching[0] if len(frames) > 1 and len(matching) == 1 else None
 
 
 def _check_writable(*paths: str | None) -> None:

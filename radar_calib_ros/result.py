@@ -161,6 +161,18 @@ def write_atomic(path: str | Path, text: str) -> None:
         raise
 
 
+def _one_radar(calibrations: Mapping[str, Any], radar_frame: str | None,
+               path: Path) -> Any:
+    """The calibration of ``radar_frame`` in a file of several radars (or its only one)."""
+    if radar_frame in calibrations:
+        return calibrations[radar_frame]
+    if len(calibrations) == 1:
+        return next(iter(calibrations.values()))
+    raise ResultFileError(f'result file {str(path)!r} holds the calibrations of several radars '
+                          f'({", ".join(map(str, calibrations))}) and none of frame '
+                          f'{radar_frame!r}: set radar.frame_id to the one to use')
+
+
 def write_result_yaml(path: str | Path, calibration: Mapping[str, Any]) -> None:
     write_atomic(path, result_yaml_text(calibration))
 
@@ -169,13 +181,16 @@ def write_result_json(path: str | Path, calibration: Mapping[str, Any]) -> None:
     write_atomic(path, json.dumps(dict(calibration), indent=2) + '\n')
 
 
-def load_result(path: str | Path) -> dict[str, Any]:
+def load_result(path: str | Path, radar_frame: str | None = None) -> dict[str, Any]:
     """Read and validate a result file (``result.yaml`` or ``result.json`` layout).
+
+    A file of several radars (``--all-radars``: the combined parameters file, or its JSON
+    keyed by frame) gives the calibration of ``radar_frame``, or its only one.
 
     Raises
     ------
     ResultFileError
-        Naming what is missing or malformed.
+        Naming what is missing or malformed, or the frames to choose from.
     """
     path = Path(path)
     try:
@@ -187,10 +202,19 @@ def load_result(path: str | Path) -> dict[str, Any]:
     except yaml.YAMLError as err:
         raise ResultFileError(f'result file {str(path)!r} is not valid YAML/JSON') from err
     if isinstance(doc, dict) and 'world_frame' not in doc:
+        several: Any = None
         for body in doc.values():
             if isinstance(body, dict) and isinstance(body.get('ros__parameters'), dict):
-                doc = body['ros__parameters'].get('calibration')
+                params = body['ros__parameters']
+                several = params.get('calibrations')
+                doc = params.get('calibration')
                 break
+        else:
+            # the --all-radars JSON: {frame: calibration}
+            if doc and all(isinstance(v, dict) and 'world_frame' in v for v in doc.values()):
+                several = doc
+        if isinstance(several, dict) and several:
+            doc = _one_radar(several, radar_frame, path)
     if not isinstance(doc, dict):
         raise ResultFileError(f'result file {str(path)!r} has no calibration mapping')
     missing = [k for k in ('translation', 'quaternion_xyzw', 'epsg') if k not in doc]

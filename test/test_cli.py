@@ -199,3 +199,17 @@ def test_a_radar_frame_id_unlike_the_parameter_is_warned(
                             lambda path, f=same: {config.radar_topic: f})
         cli._warn_frame_id('some.bag', config)
         assert capsys.readouterr().err == ''
+
+
+def test_evaluate_finds_one_radars_topic_by_its_frame(monkeypatch: pytest.MonkeyPatch) -> None:
+    """One radar's result of --all-radars on the bag of all of them: its radar_frame names
+    the topic where the parameters do not; a topic the parameters name is kept."""
+    from radar_calib_ros import cli
+    from radar_calib_ros.io import bag as bag_io
+
+    frames = {'/north/points': 'radar_ne', '/south/points': 'radar_sw'}
+    monkeypatch.setattr(bag_io, 'radar_frame_ids', lambda path: frames)
+    assert cli._topic_of_frame('b', CalibConfig(), 'radar_sw') == '/south/points'
+    assert cli._topic_of_frame('b', CalibConfig(), 'radar') is None
+    named = CalibConfig.from_mapping({'radar_topic': '/north/points'})
+    assert cli._topic_of_frame('b', named, 'radar_sw') is None

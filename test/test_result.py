@@ -115,3 +115,27 @@ def test_written_files_get_the_umask_permissions(tmp_path: Path) -> None:
         os.umask(old)
     assert stat.S_IMODE((tmp_path / 'r.yaml').stat().st_mode) == 0o644
     assert stat.S_IMODE((tmp_path / 'private.yaml').stat().st_mode) == 0o600
+
+
+def test_a_file_of_several_radars_gives_the_one_asked_for(tmp_path: Path) -> None:
+    """What --all-radars writes (the combined parameters file, its JSON keyed by frame)
+    can be evaluated: the calibration of radar.frame_id, or the only one; otherwise the
+    error lists the frames (it used to say 'no calibration mapping')."""
+    from radar_calib_ros.multi_radar import combined_parameters
+
+    frame = LocalFrame.at(48.4, 9.99)
+    cals = {name: calibration_dict(Extrinsics(_rz(deg), np.array([deg, 2.0, 480.0])), frame,
+                                   radar_frame=name)
+            for name, deg in (('radar_ne', 10.0), ('radar_sw', 190.0))}
+    (tmp_path / 'all.yaml').write_text(yaml.safe_dump(combined_parameters(cals)))
+    write_atomic(tmp_path / 'all.json', json.dumps(cals))
+    for name in ('all.yaml', 'all.json'):
+        picked = load_result(tmp_path / name, 'radar_sw')
+        assert picked['radar_frame'] == 'radar_sw'
+        assert picked['translation'] == cals['radar_sw']['translation']
+        with pytest.raises(ResultFileError, match=r'several radars \(radar_ne, radar_sw\) and '
+                           r"none of frame 'radar': set radar.frame_id"):
+            load_result(tmp_path / name, 'radar')
+    one = {'radar_ne': cals['radar_ne']}
+    (tmp_path / 'one.yaml').write_text(yaml.safe_dump(combined_parameters(one)))
+    assert load_result(tmp_path / 'one.yaml', 'radar')['radar_frame'] == 'radar_ne'
