@@ -361,8 +361,10 @@ class RecordingBuilder:
             v_level = _level_twist(q, yaw_true, v_body)
             rate = np.array([o.yaw_rate_rps for o in odoms], np.float64)
             to = (o_stamps - stamps[0]) * 1e-9
+            # over +-0.2 s; unchanged by a lag correction, which moves every fix alike
+            measured = _position_velocities(t, positions)
             if self._fixes:
-                lag_s = _fix_lag(t, positions, to, yaw_true, v_level)
+                lag_s = _fix_lag(t, measured[:, :2], to, yaw_true, v_level)
                 if lag_s:
                     # the fix stamped t shows where the vehicle was at t - lag
                     self.counters['fix_lag_ms'] = int(round(1000.0 * lag_s))
@@ -371,7 +373,6 @@ class RecordingBuilder:
                     stamps = stamps - int(round(lag_s * 1e9))
                     to = to + lag_s
             yaw_true_at = _interp_angle(t, to, yaw_true)
-            measured = _position_velocities(t, positions)
             # The checks differentiate over +-1 s, not the +-0.2 s the velocities use: a
             # standalone fix (metres of noise, 10 Hz) gives ~7 m/s of noise over 0.4 s and
             # would condemn a good twist, ~1.4 m/s over 2 s; a zero or mis-framed twist, or a
@@ -636,7 +637,7 @@ _FIX_LAG_MIN_S = 0.02
 _FIX_LAG_SIGMAS = 5.0
 
 
-def _fix_lag(t: F64, positions: F64, to: F64, yaw: F64, v_level: F64) -> float:
+def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
     """Seconds by which the fixes' stamps lag the Odometry's (0.0 when the data do not
     show one clearly).
 
@@ -654,7 +655,6 @@ def _fix_lag(t: F64, positions: F64, to: F64, yaw: F64, v_level: F64) -> float:
     """
     if t.size < 50 or to.size < 50:
         return 0.0
-    v_fix = _position_velocities(t, positions[:, :2])
     c, s = np.cos(yaw), np.sin(yaw)
     v_odom = np.column_stack([c * v_level[:, 0] - s * v_level[:, 1],
                               s * v_level[:, 0] + c * v_level[:, 1]])
@@ -681,8 +681,9 @@ def _fix_lag(t: F64, positions: F64, to: F64, yaw: F64, v_level: F64) -> float:
     lag = float(lags[k] + 0.5 * _FIX_LAG_STEP_S * (cost[k - 1] - cost[k + 1]) / curvature)
     # standard error of a one-parameter least squares: residual variance over the summed
     # squared sensitivity (the Odometry's acceleration), with samples 0.4 s apart independent
-    acc = np.column_stack([np.gradient(odom_at(tu - lag)[:, i], tu) for i in range(2)])
-    residual = vu - odom_at(tu - lag)
+    matched = odom_at(tu - lag)
+    acc = np.column_stack([np.gradient(matched[:, i], tu) for i in range(2)])
+    residual = vu - matched
     rate_hz = (tu.size - 1) / max(float(tu[-1] - tu[0]), 1e-9)
     correlated = max(1.0, 0.4 * rate_hz)
     information = float(np.sum(acc ** 2)) / correlated
