@@ -123,6 +123,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     if args.all_radars:
         return cmd_calibrate_all_radars(args, out)
     _refuse_ambiguous_radar(args.bag, config)
+    args.output = args.output or 'result.yaml'
     _check_writable(args.output, args.json)
     _warn_frame_id(args.bag, config)
     progress = _Progress(args.progress if args.progress is not None else sys.stderr.isatty())
@@ -255,12 +256,13 @@ def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
     radar frame in ``--output-dir`` plus the combined ``all_radars.yaml``."""
     import json
 
-    from radar_calib_ros.multi_radar import calibrate_all_radars, write_outcomes
+    from radar_calib_ros.multi_radar import COMBINED_FILE, calibrate_all_radars, write_outcomes
     from radar_calib_ros.result import write_atomic
     if getattr(args, 'report', None):
         print('error: --report takes one radar; use `radar-calib report` per radar result',
               file=sys.stderr)
         return 2
+    _check_writable(args.output, args.json)
     start = time.perf_counter()
 
     def done(outcome: Any) -> None:
@@ -277,6 +279,10 @@ def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
 
     outcomes = calibrate_all_radars(args.bag, args.params, jobs=args.jobs, done=done)
     written = write_outcomes(args.output_dir, outcomes)
+    if args.output and written and written[-1].name == COMBINED_FILE:
+        # a user who names --output expects the file there: the combined transforms
+        write_atomic(args.output, written[-1].read_text())
+        written.append(Path(args.output))
     if args.json:
         write_atomic(args.json, json.dumps({o.frame_id: o.calibration for o in outcomes
                                             if o.calibration is not None}, indent=2) + '\n')
@@ -387,7 +393,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('calibrate', help='calibrate a radar from a rosbag2 recording')
     _add_recording_arguments(p, calibration=False)
-    p.add_argument('--output', default='result.yaml', help='result file (default: %(default)s)')
+    p.add_argument('--output', default=None,
+                   help='result file (default: result.yaml); with --all-radars, where a copy '
+                   'of the combined all_radars.yaml goes')
     p.add_argument('--json', help='also write the result as JSON here')
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
                    help='progress bars (default: when stderr is a terminal)')

@@ -80,7 +80,7 @@ def test_all_radars_calibrates_each_radar(three: tuple[SimulationSummary, Path],
     out_dir = tmp_path / 'calibrations'
     code = main(['calibrate', str(sim.paths.bag), '--params', str(params), '--all-radars',
                  '--output-dir', str(out_dir), '--json', str(tmp_path / 'all.json'),
-                 '--jobs', '2'])
+                 '--output', str(tmp_path / 'site' / 'radars.yaml'), '--jobs', '2'])
     stdout = capsys.readouterr().out
     assert code == 0, stdout
     assert '3 of 3 radars calibrated' in stdout
@@ -89,6 +89,8 @@ def test_all_radars_calibrates_each_radar(three: tuple[SimulationSummary, Path],
     combined = yaml.safe_load((out_dir / 'all_radars.yaml').read_text())
     params_ = combined['/**']['ros__parameters']
     assert params_['radar_frames'] == FRAMES
+    # --output, when named, gets the combined transforms too
+    assert yaml.safe_load((tmp_path / 'site' / 'radars.yaml').read_text()) == combined
     as_json = json.loads((tmp_path / 'all.json').read_text())
     assert sorted(as_json) == FRAMES
     for frame in FRAMES:
@@ -113,6 +115,19 @@ def test_all_radars_bad_input_exits_2(tmp_path: Path,
                  str(tmp_path / 'out')])
     assert code == 2
     assert capsys.readouterr().err.startswith('error: ')
+    assert not (tmp_path / 'out').exists()
+
+
+def test_all_radars_unwritable_output_exits_2_before_the_work(
+        three: tuple[SimulationSummary, Path], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    sim, params = three
+    blocker = tmp_path / 'file'
+    blocker.write_text('not a folder')
+    code = main(['calibrate', str(sim.paths.bag), '--params', str(params), '--all-radars',
+                 '--output-dir', str(tmp_path / 'out'), '--output', str(blocker / 'all.yaml')])
+    assert code == 2
+    assert 'cannot write the result' in capsys.readouterr().err
     assert not (tmp_path / 'out').exists()
 
 
