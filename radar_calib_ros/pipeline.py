@@ -381,6 +381,11 @@ def _span(stamps_ns: np.ndarray) -> str:
     return f'{stamps_ns[0] * 1e-9:.3f}-{stamps_ns[-1] * 1e-9:.3f} s'
 
 
+def _length(metres: float) -> str:
+    """'2 cm' below a decimetre, '0.6 m' above."""
+    return f'{100 * metres:.0f} cm' if metres < 0.1 else f'{metres:.1f} m'
+
+
 def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
     source: ``corrections`` made on the way (a flipped radial-velocity sign, folded
@@ -412,13 +417,25 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                         f'{recording.fix_sigma_m[1]:.2f} m vertical (1 sigma), which the '
                         'reported uncertainty includes')
         else:
-            declared = ('they declare no covariance, so the reported uncertainty cannot '
-                        'include their error')
+            h, v = recording.pose_sigma_m
+            declared = ('they declare no covariance, so the reported uncertainty assumes '
+                        f'{h:.1f} m horizontal and {v:.1f} m vertical (1 sigma), typical of '
+                        'such fixes')
         notes.append(f'{100 * standalone / fixes:.0f} % of the vehicle\'s fixes are standalone '
                      'GNSS (NavSatFix status 0: no RTK, SBAS or GBAS); their error passes '
                      f'into the radar\'s position one to one, and {declared}. Calibrate with '
                      'an RTK fix.')
-    elif recording.counters.get('fixes_degraded_dropped', 0):
+    elif fixes and recording.fix_sigma_m is None and recording.fix_grade != 'rtk':
+        # (RTK fixes without a covariance get RTK's 2 cm silently: that is what they are)
+        h, v = recording.pose_sigma_m
+        grade = recording.fix_grade.upper()
+        notes.append('The vehicle\'s fixes declare no position covariance (COVARIANCE_TYPE_'
+                     f'UNKNOWN): the reported uncertainty assumes {_length(h)} horizontal '
+                     f'and {_length(v)} vertical (1 sigma), typical of {grade} fixes as '
+                     'their status says; if the vehicle\'s positions are worse, so is the '
+                     'calibration.')
+    if recording.counters.get('fixes_degraded_dropped', 0) and not (
+            fixes and standalone > 0.5 * fixes):
         dropped = recording.counters['fixes_degraded_dropped']
         stretches = recording.counters.get('fixes_unaugmented_stretches', 0)
         longest_s = recording.counters.get('fixes_unaugmented_longest_ms', 0) / 1000.0

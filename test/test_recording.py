@@ -426,7 +426,8 @@ def test_rtk_lost_for_stretches_is_named_with_their_count_and_length() -> None:
 
     # 100 fixes at 1 Hz: standalone at 20-29 s (10 fixes) and 60-64 s (5 fixes)
     standalone = set(range(20, 30)) | set(range(60, 65))
-    rec = _straight_fixes([0 if k in standalone else 2 for k in range(100)]).build()
+    rec = _straight_fixes([0 if k in standalone else 2 for k in range(100)],
+                          [(0.02, 0.03)] * 100).build()
     assert rec.counters['fixes_unaugmented_stretches'] == 2
     assert rec.counters['fixes_unaugmented_longest_ms'] == 9000
     notes = [n for n in _data_notes(rec, []) if 'RTK' in n]
@@ -454,10 +455,43 @@ def test_a_mostly_standalone_drive_keeps_every_fix() -> None:
 def test_an_rtk_drive_gets_no_gnss_note() -> None:
     from radar_calib_ros.pipeline import _data_notes
 
-    builder, _, _ = circle_builder()
-    rec = builder.build()
+    rec = _straight_fixes([2] * 20, [(0.015, 0.025)] * 20).build()
     assert 'fixes_unaugmented_stretches' not in rec.counters
+    assert rec.pose_sigma_m == pytest.approx((0.015, 0.025))
     assert not [n for n in _data_notes(rec, []) if 'RTK' in n or 'GNSS' in n]
+
+
+@pytest.mark.parametrize('status, grade, sigma', [
+    (2, 'RTK', (0.02, 0.03)), (1, 'SBAS', (0.6, 1.2)), (0, 'standalone', (2.0, 4.0))])
+def test_fixes_without_covariance_get_the_sigma_their_status_is_known_for(
+        status: int, grade: str, sigma: tuple[float, float]) -> None:
+    """COVARIANCE_TYPE_UNKNOWN still has an error: the uncertainty assumes the one the
+    fixes' status is known for, and below RTK a note says which (an independent recording's
+    rotation sigma had shrunk 0.203 -> 0.158 deg when its driver left the type unknown)."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    rec = _straight_fixes([status] * 20).build()
+    assert rec.fix_sigma_m is None
+    assert rec.pose_sigma_m == pytest.approx(sigma)
+    notes = [n for n in _data_notes(rec, []) if 'no covariance' in n
+             or 'no position covariance' in n]
+    if status == 2:  # RTK's 2 cm is what RTK fixes are: assumed without a note
+        assert not notes
+        return
+    assert len(notes) == 1, _data_notes(rec, [])
+    assert grade in notes[0] or status == 0
+    assert f'{sigma[0]:.1f} m horizontal' in notes[0], notes[0]
+
+
+def test_odometry_alone_is_taken_as_rtk_without_a_note() -> None:
+    import dataclasses
+
+    from radar_calib_ros.pipeline import _data_notes
+
+    builder, _, _ = circle_builder()
+    rec = dataclasses.replace(builder.build(), counters={}, fix_sigma_m=None)
+    assert rec.pose_sigma_m == pytest.approx((0.02, 0.03))
+    assert not [n for n in _data_notes(rec, []) if 'covariance' in n]
 
 
 def test_messages_sharing_a_header_stamp_are_one_scan() -> None:

@@ -1153,21 +1153,21 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     model_difference = (np.zeros(3) if alternative_translation is None
                         else np.asarray(alternative_translation, float) - est.translation_m)
     cov7[3:6, 3:6] += uncertainty.model_term(model_difference, cov7[3:6, 3:6])
-    if recording.fix_sigma_m is not None:
-        # The vehicle's own position error passes one to one into the radar's, and a GNSS
-        # error drifts over minutes, so the passes share it: the fixes' declared 1-sigma
-        # (median over the drive) joins the translation (RTK: ~2 cm, nothing; a standalone
-        # fix: metres, which the fit cannot see).
-        sigma_h, sigma_v = recording.fix_sigma_m
-        cov7[3:6, 3:6] += np.diag([sigma_h ** 2, sigma_h ** 2, sigma_v ** 2])
-        # The same error tilts and turns the fit where it differs along the drive: heights
-        # off by sigma_v at one end of the vehicle positions and not at the other tilt the
-        # radar by about sigma_v over their spread (RTK: 2 cm over 25 m, 0.05 deg; a
-        # standalone fix's metres of wander: degrees, which the jackknife of a few passes
-        # missed by half on an independent recording, 6.4 deg off at 2.9 deg 1 sigma).
-        spread = _position_spread(data, poses, est.time_offset_s)
-        cov7 = uncertainty.add_tilt(cov7, sigma_v / spread)
-        cov7[2, 2] += (sigma_h / spread) ** 2
+    # The vehicle's own position error passes one to one into the radar's, and a GNSS
+    # error drifts over minutes, so the passes share it: the fixes' declared 1-sigma
+    # (median over the drive; assumed from their status where they declare none) joins
+    # the translation (RTK: ~2 cm, nothing; a standalone fix: metres, which the fit
+    # cannot see).
+    sigma_h, sigma_v = recording.pose_sigma_m
+    cov7[3:6, 3:6] += np.diag([sigma_h ** 2, sigma_h ** 2, sigma_v ** 2])
+    # The same error tilts and turns the fit where it differs along the drive: heights
+    # off by sigma_v at one end of the vehicle positions and not at the other tilt the
+    # radar by about sigma_v over their spread (RTK: 2 cm over 25 m, 0.05 deg; a
+    # standalone fix's metres of wander: degrees, which the jackknife of a few passes
+    # missed by half on an independent recording, 6.4 deg off at 2.9 deg 1 sigma).
+    spread = _position_spread(data, poses, est.time_offset_s)
+    cov7 = uncertainty.add_tilt(cov7, sigma_v / spread)
+    cov7[2, 2] += (sigma_h / spread) ** 2
     halves = _halves_disagreement(halves_shift, cov7)
     if halves is not None and halves_shift is not None:
         # The result is a blend of two different poses: either could be the radar's, so the

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from refine_scene import errors, make_scene
+from refine_scene import Scene, errors, make_scene
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import refine, reflection, uncertainty
@@ -363,9 +363,17 @@ def test_model_check_adds_the_refit_difference_to_the_covariance() -> None:
 
 def test_declared_fix_sigma_joins_the_translation_covariance() -> None:
     scene = make_scene(9, model='interior', geometry='head_on')
-    declared = dataclasses.replace(scene, recording=dataclasses.replace(
-        scene.recording, fix_sigma_m=(1.0, 2.0)))
-    plain, with_gnss = _run(scene), _run(declared)
+
+    def declaring(sigma: tuple[float, float]) -> Scene:
+        return dataclasses.replace(scene, recording=dataclasses.replace(
+            scene.recording, fix_sigma_m=sigma))
+
+    plain, with_gnss, unknown = _run(declaring((0.0, 0.0))), _run(declaring((1.0, 2.0))), \
+        _run(scene)
+    # fixes that declare nothing are taken at RTK's (their status says RTK)
+    assert scene.recording.fix_sigma_m is None
+    np.testing.assert_allclose((unknown.covariance - plain.covariance)[3:6, 3:6],
+                               np.diag([0.02 ** 2, 0.02 ** 2, 0.03 ** 2]), atol=1e-12)
     np.testing.assert_array_equal(with_gnss.extrinsics.translation_m,
                                   plain.extrinsics.translation_m)
     added = with_gnss.covariance - plain.covariance
