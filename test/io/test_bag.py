@@ -120,6 +120,34 @@ def test_round_trip_exact_targets_and_poses(tmp_path: Path, ts: Any, storage: st
     np.testing.assert_allclose(rec.vehicle.yaw_rate_rps, 0.5)
 
 
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('mode', ['FILE', 'MESSAGE'])
+def test_zstd_compressed_bags_read_as_the_plain_one(tmp_path: Path, good_bags: dict[str, Path],
+                                                    storage: str, mode: str) -> None:
+    """``ros2 bag record --compression-mode file|message --compression-format zstd``: the
+    same recording as uncompressed (rosbags decompresses; zstd comes with it)."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+    plain = read_recording(good_bags[storage], CalibConfig())
+    out = tmp_path / 'compressed'
+    writer = Writer(out, version=9, storage_plugin=StoragePlugin[storage.upper()])
+    writer.set_compression(CompressionMode[mode], CompressionFormat.ZSTD)
+    with Reader(good_bags[storage]) as reader, writer:
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data,
+                                             rihs01=c.digest) for c in reader.connections}
+        for conn, t, raw in reader.messages():
+            writer.write(conns[conn.id], t, raw)
+    metadata = (out / 'metadata.yaml').read_text()
+    assert f'compression_mode: {mode.lower()}' in metadata.lower(), metadata
+    if mode == 'FILE':
+        assert any(p.suffix == '.zstd' for p in out.iterdir())
+    rec = read_recording(out, CalibConfig())
+    np.testing.assert_array_equal(rec.frame_stamps_ns, plain.frame_stamps_ns)
+    np.testing.assert_array_equal(rec.targets.positions_m, plain.targets.positions_m)
+    np.testing.assert_array_equal(rec.vehicle.positions_m, plain.vehicle.positions_m)
+
+
 def test_spherical_and_radarscan_inputs(tmp_path: Path, ts: Any) -> None:
     s = scene(seed=2)
     rec_xyz = read_recording(_write(tmp_path / 'xyz', ts, s), CalibConfig())
