@@ -403,6 +403,23 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
         notes.append('The Odometry orientation did not describe the vehicle\'s travel (identity, '
                      'or another frame\'s): the heading was taken from the course over '
                      'ground. Check the driver\'s orientation.')
+    offset_cdeg = recording.counters.get('odometry_heading_offset_cdeg')
+    if offset_cdeg:
+        notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the vehicle\'s '
+                     'course over ground throughout (an INS mounted turned, or the heading of '
+                     'its own frame rather than the vehicle\'s): it was taken off. Check the '
+                     'INS yaw alignment.')
+    reversed_runs = recording.counters.get('vehicle_reversed_stretches', 0)
+    if reversed_runs:
+        ambiguous = recording.counters.get('vehicle_reversed_ambiguous', 0)
+        how = (' (where it drove as far backwards as forwards, the slower way was taken as '
+               'backwards)' if ambiguous else '')
+        notes.append(f'The vehicle reversed {reversed_runs} time'
+                     f'{"s" if reversed_runs != 1 else ""} '
+                     f'({recording.counters.get("vehicle_reversed_m", 0)} m): told by its course '
+                     'turning round at a standstill, with no Odometry orientation to say which '
+                     f'way it faced{how}; there it was taken to face against its travel. '
+                     'Record the INS Odometry, or drive forwards through the view.')
     if not recording.has_elevation:
         notes.append('The radar reports no elevation (z = 0 for every target: a 2-D radar): '
                      'its roll and pitch cannot be measured from its targets and are reported '
@@ -411,31 +428,27 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      'Measure the tilt at the mount.')
     fixes = recording.counters.get('fixes', 0)
     standalone = recording.counters.get('fixes_unaugmented', 0)
-    if fixes and standalone > 0.5 * fixes:
-        if recording.fix_sigma_m is not None:
-            declared = (f'they declare {recording.fix_sigma_m[0]:.2f} m horizontal and '
-                        f'{recording.fix_sigma_m[1]:.2f} m vertical (1 sigma), which the '
-                        'reported uncertainty includes')
-        else:
-            h, v = recording.pose_sigma_m
-            declared = ('they declare no covariance, so the reported uncertainty assumes '
-                        f'{h:.1f} m horizontal and {v:.1f} m vertical (1 sigma), typical of '
-                        'such fixes')
+    sbas = recording.counters.get('fixes_sbas', 0)
+    if fixes and sbas > 0.5 * fixes:
+        h, v = recording.pose_sigma_m
+        notes.append(f'{100 * sbas / fixes:.0f} % of the vehicle\'s fixes are SBAS or DGPS '
+                     '(NavSatFix status 1, not RTK): decimetres to a metre, which pass into the '
+                     f'radar\'s position one to one; the reported uncertainty takes at least '
+                     f'{_length(h)} horizontal and {_length(v)} vertical for them, whatever '
+                     'they declare. Calibrate with an RTK fix.')
+    elif fixes and standalone > 0.5 * fixes:
+        h, v = recording.pose_sigma_m
+        said = ('they declare no covariance' if recording.fix_sigma_m is None else
+                f'they declare {recording.fix_sigma_m[0]:.2f} m horizontal and '
+                f'{recording.fix_sigma_m[1]:.2f} m vertical (1 sigma)')
+        declared = (f'{said}; the reported uncertainty takes {h:.1f} m horizontal and '
+                    f'{v:.1f} m vertical for them')
         notes.append(f'{100 * standalone / fixes:.0f} % of the vehicle\'s fixes are standalone '
                      'GNSS (NavSatFix status 0: no RTK, SBAS or GBAS); their error passes '
                      f'into the radar\'s position one to one, and {declared}. Calibrate with '
                      'an RTK fix.')
-    elif fixes and recording.fix_sigma_m is None and recording.fix_grade != 'rtk':
-        # (RTK fixes without a covariance get RTK's 2 cm silently: that is what they are)
-        h, v = recording.pose_sigma_m
-        grade = recording.fix_grade.upper()
-        notes.append('The vehicle\'s fixes declare no position covariance (COVARIANCE_TYPE_'
-                     f'UNKNOWN): the reported uncertainty assumes {_length(h)} horizontal '
-                     f'and {_length(v)} vertical (1 sigma), typical of {grade} fixes as '
-                     'their status says; if the vehicle\'s positions are worse, so is the '
-                     'calibration.')
     if recording.counters.get('fixes_degraded_dropped', 0) and not (
-            fixes and standalone > 0.5 * fixes):
+            fixes and (standalone > 0.5 * fixes or sbas > 0.5 * fixes)):
         dropped = recording.counters['fixes_degraded_dropped']
         stretches = recording.counters.get('fixes_unaugmented_stretches', 0)
         longest_s = recording.counters.get('fixes_unaugmented_longest_ms', 0) / 1000.0
@@ -443,9 +456,9 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                  f'{"es" if stretches != 1 else ""}, the longest {longest_s:.0f} s'
                  if standalone else '')
         notes.append(f'{dropped} of the vehicle\'s {fixes} fixes ({100 * dropped / fixes:.0f} %) '
-                     'had lost the RTK solution (status 0, or a declared accuracy far below the '
-                     f'rest){where}: those poses, decimetres to metres off, were left out with '
-                     'the radar frames they would have placed. Check the correction link, or '
+                     'had lost the RTK solution (status 0 or 1, or a declared accuracy far below '
+                     f'the rest){where}: those poses, decimetres to metres off, were left out '
+                     'with the radar frames they would have placed. Check the correction link, or '
                      'drive those passes again.')
     lag_ms = recording.counters.get('fix_lag_ms')
     if lag_ms:

@@ -63,16 +63,22 @@ class Recording:
     @property
     def pose_sigma_m(self) -> tuple[float, float]:
         """1-sigma (horizontal, vertical) of the vehicle's positions [m]: what the fixes
-        declare, else what their NavSatStatus is known for (``NOMINAL_FIX_SIGMA_M``).
+        declare, else what their NavSatStatus is known for (``NOMINAL_FIX_SIGMA_M``), and at
+        least that below RTK.
 
         A driver that leaves the covariance unknown still has an error, and it passes one
         to one into the radar's position: leaving it out made the reported uncertainty
         smaller than with the same fixes declaring RTK's 2 cm (an independent recording:
         rotation sigma 0.158 deg against 0.203). Odometry alone is taken as RTK/INS, the
         set-up the tool is for."""
-        if self.fix_sigma_m is not None:
+        nominal = NOMINAL_FIX_SIGMA_M[self.fix_grade]
+        if self.fix_sigma_m is None:
+            return nominal
+        if self.fix_grade == 'rtk':
             return self.fix_sigma_m
-        return NOMINAL_FIX_SIGMA_M[self.fix_grade]
+        # an SBAS or standalone receiver cannot be centimetres, whatever its covariance says
+        # (a probe's SBAS fixes declared a stale 2 cm: 74 cm off at 24 cm across)
+        return (max(self.fix_sigma_m[0], nominal[0]), max(self.fix_sigma_m[1], nominal[1]))
 
     @property
     def fix_grade(self) -> str:
@@ -414,8 +420,9 @@ class RecordingBuilder:
             # would condemn a good twist, ~1.4 m/s over 2 s; a zero or mis-framed twist, or a
             # wrong heading, still misses by the speed.
             coarse = _position_velocities(t, positions[:, :2], _TWIST_CHECK_SPAN_S)
+            forward = np.interp(t, to, v_level[:, 0])
             yaw = _checked_orientation(t, coarse, measured, yaw_true_at, lat, lon, frame,
-                                       cfg.vehicle.min_heading_speed, self.counters)
+                                       cfg.vehicle.min_heading_speed, self.counters, forward)
             vx = np.interp(t, to, v_level[:, 0])
             vy = np.interp(t, to, v_level[:, 1])
             if not _tilted(q):
@@ -424,12 +431,21 @@ class RecordingBuilder:
                 vx, vy = vx * level, vy * level
             c, s = np.cos(yaw), np.sin(yaw)
             yaw_rate = np.interp(t, to, rate)
-            velocities = _checked_twist(t, positions, measured, coarse, np.column_stack(
-                [c * vx - s * vy, s * vx + c * vy]), np.column_stack([vx, vy]),
-                self.counters, yaw_rate)
+            twist_world = np.column_stack([c * vx - s * vy, s * vx + c * vy])
+            if 'odometry_heading_offset_cdeg' in self.counters:
+                # an INS turned on its mount gives its twist in its own frame too: then the
+                # heading as given turns it into the world, not the corrected one
+                offset = math.radians(self.counters['odometry_heading_offset_cdeg'] / 100.0)
+                c2, s2 = np.cos(yaw + offset), np.sin(yaw + offset)
+                own_frame = np.column_stack([c2 * vx - s2 * vy, s2 * vx + c2 * vy])
+                if _twist_mismatch(own_frame, coarse) < _twist_mismatch(twist_world, coarse):
+                    twist_world = own_frame
+            velocities = _checked_twist(t, positions, measured, coarse, twist_world,
+                                        np.column_stack([vx, vy]), self.counters, yaw_rate)
         else:
             velocities = _position_velocities(t, positions)
-            yaw, yaw_rate = _course_over_ground(t, velocities, cfg.vehicle.min_heading_speed)
+            yaw, yaw_rate = _course_over_ground(t, velocities, cfg.vehicle.min_heading_speed,
+                                                self.counters, positions)
         vehicle = VehicleTrack(stamps, positions, np.asarray(yaw, float), velocities,
                                np.asarray(yaw_rate, float))
         return frame, vehicle
@@ -536,10 +552,16 @@ def _degraded_fixes(status: F64, sigma_h: F64) -> np.ndarray:
     dropouts: 2.4 -> 15.4 cm); left out, their radar frames have no pose and wait for the
     passes with a good one. A drive that is mostly standalone keeps everything (and a note
     says so): nothing better is there."""
+    # SBAS (status 1) is decimetres to a metre as well: in an RTK drive it is a lost
+    # solution too; in a drive that is mostly SBAS only the standalone fixes are worse
+    rtk = status >= 2
     augmented = status > 0
-    if augmented.mean() < 0.5:
+    if rtk.mean() >= 0.5:
+        degraded = ~rtk
+    elif augmented.mean() >= 0.5:
+        degraded = ~augmented
+    else:
         return np.zeros(status.size, bool)
-    degraded = ~augmented
     known = np.isfinite(sigma_h)
     if known.sum() >= 2:
         limit = max(_DEGRADED_SIGMA_M, _DEGRADED_SIGMA_RATIO * float(np.median(sigma_h[known])))
@@ -552,11 +574,13 @@ def _degraded_fixes(status: F64, sigma_h: F64) -> np.ndarray:
 #: orientation is not the vehicle's [rad], and the least moving samples to judge it on.
 _ORIENTATION_TOLERANCE_RAD = math.radians(20.0)
 _ORIENTATION_SAMPLES = 10
+#: Forward speed of the twist below which the vehicle is taken to reverse [m/s].
+_REVERSE_TWIST_MPS = 0.5
 
 
 def _checked_orientation(t: F64, coarse: F64, measured: F64, yaw_true: F64, lat: F64,
                          lon: F64, frame: LocalFrame, min_speed: float,
-                         counters: Counter[str]) -> F64:
+                         counters: Counter[str], forward_mps: F64 | None = None) -> F64:
     """(n,) local-grid heading from the Odometry orientation where it describes the
     vehicle's travel, else from a compass-convention reading of it, else from the course
     over ground.
@@ -565,23 +589,32 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, yaw_true: F64, lat:
     write a compass heading (clockwise from north) into the quaternion, or leave it the
     identity; both were taken at their word, the twist then failed its check and was blamed
     (fourth probe: 22 cm and a 66 cm sigma). Where the vehicle moves (speed above
-    ``min_speed``, over +-1 s) the course over ground is its heading, forwards; reversing is
-    rare enough for the median to ignore. ``coarse`` and ``measured`` are the positions'
-    velocities over +-1 s and +-0.2 s.
+    ``min_speed``, over +-1 s) the course over ground is its heading: forwards, or backwards
+    where the twist's forward speed ``forward_mps`` says the vehicle reversed (a shuttle
+    that backs through the view half the time had its right orientation condemned and
+    faced the wrong way: 3 m off, an independent probe). The orientation is judged against
+    both readings of the course, with and without those reversals (a twist in the wrong
+    frame has no meaningful sign), and the better one counts. ``coarse`` and ``measured``
+    are the positions' velocities over +-1 s and +-0.2 s.
     """
     yaw = frame.true_yaw_to_local(yaw_true, lat, lon)
     moving = np.hypot(coarse[:, 0], coarse[:, 1]) > max(min_speed, 2.0)
     if int(moving.sum()) < _ORIENTATION_SAMPLES:
         return yaw
     course = np.arctan2(coarse[moving, 1], coarse[moving, 0])
+    courses = [course]
+    if forward_mps is not None:
+        backwards = np.asarray(forward_mps, float)[moving] < -_REVERSE_TWIST_MPS
+        if backwards.any():
+            courses.append(course + np.pi * backwards)
 
     def disagreement(heading: F64) -> float:
-        return float(np.median(np.abs((heading[moving] - course + np.pi) % (2 * np.pi)
-                                      - np.pi)))
+        return min(float(np.median(np.abs((heading[moving] - c + np.pi) % (2 * np.pi)
+                                          - np.pi))) for c in courses)
 
     as_given = disagreement(yaw)
     if as_given <= _ORIENTATION_TOLERANCE_RAD:
-        return yaw
+        return yaw - _heading_offset(yaw[moving], courses, counters)
     compass = frame.true_yaw_to_local(np.pi / 2.0 - yaw_true, lat, lon)
     if disagreement(compass) <= _ORIENTATION_TOLERANCE_RAD:
         counters['odometry_orientation_compass'] = 1
@@ -592,7 +625,34 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, yaw_true: F64, lat:
     _LOG.warning('the Odometry orientation does not describe the vehicle\'s travel (median '
                  '%.0f deg off its course over ground): the heading is taken from the course '
                  'over ground instead', math.degrees(as_given))
-    return _course_over_ground(t, measured, min_speed)[0]
+    return _course_over_ground(t, measured, min_speed, counters)[0]
+
+
+#: A constant heading offset of the Odometry against the course over ground smaller than
+#: this is left alone [rad] (RTK courses at >2 m/s agree with a good INS to ~0.2 deg).
+_HEADING_OFFSET_MIN_RAD = math.radians(1.0)
+
+
+def _heading_offset(heading: F64, courses: list[F64], counters: Counter[str]) -> float:
+    """The Odometry heading's constant offset from the vehicle's travel [rad], 0 below
+    ``_HEADING_OFFSET_MIN_RAD``.
+
+    Why: an INS whose yaw is not aligned with the car (mounted turned, or the heading of
+    ``imu_link`` rather than the vehicle) turns the vehicle's box and its twist by that
+    angle; 12-20 deg went unnoticed below the 20 deg check and put an independent probe's
+    radar 0.5 m off at twice its sigma. A car drives where it faces (no crab angle), so the
+    median of heading minus course over the moving samples is the offset; of the two
+    readings of the course (with and without reversals) the one the heading agrees with.
+    """
+    best = min(courses, key=lambda c: float(np.median(np.abs(
+        (heading - c + np.pi) % (2 * np.pi) - np.pi))))
+    offset = float(np.median((heading - best + np.pi) % (2 * np.pi) - np.pi))
+    if abs(offset) < _HEADING_OFFSET_MIN_RAD:
+        return 0.0
+    counters['odometry_heading_offset_cdeg'] = int(round(100.0 * math.degrees(offset)))
+    _LOG.warning('the Odometry heading is %.1f deg off the vehicle\'s course over ground '
+                 'throughout: taken off', math.degrees(offset))
+    return offset
 
 
 def _level_twist(quaternion_xyzw: F64, yaw: F64, v_body: F64) -> F64:
@@ -704,8 +764,17 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
     def odom_at(tq: F64) -> F64:
         return np.column_stack([np.interp(tq, to, v_odom[:, i]) for i in range(2)])
 
+    def turned(v: F64) -> F64:
+        # the Odometry's velocity turned by the angle that fits the fixes' best: an INS
+        # heading offset (``_heading_offset``) must not pass for a lag (on a steady turn the
+        # two are one), and what is left to the lag is then only what the turn cannot take
+        angle = math.atan2(float(np.sum(v[:, 0] * vu[:, 1] - v[:, 1] * vu[:, 0])),
+                           float(np.sum(v[:, 0] * vu[:, 0] + v[:, 1] * vu[:, 1])))
+        ca, sa = math.cos(angle), math.sin(angle)
+        return np.column_stack([ca * v[:, 0] - sa * v[:, 1], sa * v[:, 0] + ca * v[:, 1]])
+
     lags = np.arange(-_FIX_LAG_MAX_S, _FIX_LAG_MAX_S + 1e-9, _FIX_LAG_STEP_S)
-    cost = np.array([np.mean((vu - odom_at(tu - lag)) ** 2) for lag in lags])
+    cost = np.array([np.mean((vu - turned(odom_at(tu - lag))) ** 2) for lag in lags])
     k = int(np.argmin(cost))
     speed = float(np.median(np.hypot(vu[:, 0], vu[:, 1])))
     tolerance = max(_TWIST_TOLERANCE_MPS, _TWIST_TOLERANCE_FRACTION * speed)
@@ -717,12 +786,17 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
     lag = float(lags[k] + 0.5 * _FIX_LAG_STEP_S * (cost[k - 1] - cost[k + 1]) / curvature)
     # standard error of a one-parameter least squares: residual variance over the summed
     # squared sensitivity (the Odometry's acceleration), with samples 0.4 s apart independent
-    matched = odom_at(tu - lag)
+    matched = turned(odom_at(tu - lag))
     acc = np.column_stack([np.gradient(matched[:, i], tu) for i in range(2)])
     residual = vu - matched
     rate_hz = (tu.size - 1) / max(float(tu[-1] - tu[0]), 1e-9)
     correlated = max(1.0, 0.4 * rate_hz)
-    information = float(np.sum(acc ** 2)) / correlated
+    # the part of the lag's sensitivity that the turn's angle cannot take up: on a steady
+    # circle the acceleration lies along the turn's (perpendicular to the velocity) and a
+    # lag says nothing
+    perp = np.column_stack([-matched[:, 1], matched[:, 0]])
+    along_turn = float(np.sum(acc * perp)) ** 2 / max(float(np.sum(perp ** 2)), 1e-12)
+    information = max(float(np.sum(acc ** 2)) - along_turn, 0.0) / correlated
     if information <= 0.0:
         return 0.0
     se = math.sqrt(float(np.mean(residual ** 2)) / information)
@@ -732,6 +806,14 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
         return 0.0
     _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms', 1e3 * lag, 1e3 * se)
     return lag
+
+
+def _twist_mismatch(twist_world: F64, coarse: F64) -> float:
+    """Median distance of a world twist from the positions' velocities where moving."""
+    moving = np.hypot(coarse[:, 0], coarse[:, 1]) > _TWIST_CHECK_SPEED_MPS
+    if not moving.any():
+        return 0.0
+    return float(np.median(np.linalg.norm(twist_world[moving] - coarse[moving], axis=1)))
 
 
 def _checked_twist(t: F64, positions: F64, measured: F64, coarse: F64, twist_world: F64,
@@ -856,6 +938,7 @@ def _finite_difference(t: F64, x: F64, half_span_s: float = 0.2) -> F64:
 
 
 def _course_over_ground(t: F64, velocities: F64, min_speed: float,
+                        counters: Counter[str] | None = None, positions: F64 | None = None,
                         half_span_s: float = 0.5) -> tuple[F64, F64]:
     """Heading from the course over ground where the speed allows it, held (interpolated
     on the circle) across slow and stopped stretches where the course is noise.
@@ -874,6 +957,11 @@ def _course_over_ground(t: F64, velocities: F64, min_speed: float,
     hi = np.searchsorted(t, t + half_span_s, side='right')
     smoothed = sums[hi] - sums[lo]
     course = np.arctan2(smoothed[:, 1], smoothed[:, 0])
+    if counters is not None:
+        if positions is None:  # where the positions are not at hand: the velocities' path
+            steps = 0.5 * (velocities[1:, :2] + velocities[:-1, :2]) * np.diff(t)[:, None]
+            positions = np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+        course = course + np.pi * _reversing(t, course, good, speed, positions, counters)
     if good.sum() >= 2:
         yaw = _interp_angle(t, t[good], course[good])
     elif good.any():
@@ -882,3 +970,66 @@ def _course_over_ground(t: F64, velocities: F64, min_speed: float,
         yaw = np.zeros_like(t)
     yaw_rate = _finite_difference(t, np.unwrap(yaw))
     return yaw, yaw_rate
+
+
+#: A stop across which the course turns by more than this is a change of gear (a car cannot
+#: turn while standing) [rad]; the most the vehicle may move during such a stop [m].
+_REVERSE_FLIP_RAD = math.radians(135.0)
+_REVERSE_STOP_MOVE_M = 3.0
+
+
+def _reversing(t: F64, course: F64, good: np.ndarray, speed: F64, positions: F64,
+               counters: Counter[str]) -> np.ndarray:
+    """(n,) True where the vehicle, by its course over ground alone, drove backwards.
+
+    Why: with fixes alone the heading is the course over ground, which points backwards
+    while the vehicle reverses, and its box then faces the wrong way (a shuttle that backed
+    through the view: 1.7-1.9 m off, outside 2 sigma, an independent probe). A car cannot
+    turn while it stands, so a stop (or a slowing below ``min_speed``) across which the
+    course turns by more than ``_REVERSE_FLIP_RAD`` while the vehicle stays within
+    ``_REVERSE_STOP_MOVE_M`` is a change of gear: the runs of driving on either side face
+    the same way, one of them backwards. Which one is told by distance driven: a calibration
+    vehicle drives forwards most of the way (on a tie, the faster runs are the forward
+    ones). Runs joined by no such stop keep their course.
+    """
+    reverse = np.zeros(t.size, bool)
+    idx = np.flatnonzero(good)
+    if idx.size < 2:
+        return reverse
+    breaks = np.flatnonzero(np.diff(idx) > 1)
+    starts = np.concatenate([[idx[0]], idx[breaks + 1]])
+    ends = np.concatenate([idx[breaks], [idx[-1]]])
+    if starts.size < 2:
+        return reverse
+    turn = np.abs((course[starts[1:]] - course[ends[:-1]] + np.pi) % (2 * np.pi) - np.pi)
+    moved = np.linalg.norm(positions[starts[1:], :2] - positions[ends[:-1], :2], axis=1)
+    flip = (turn > _REVERSE_FLIP_RAD) & (moved < _REVERSE_STOP_MOVE_M)
+    if not flip.any():
+        return reverse
+    # direction of each run within chains of runs joined by gear changes; a chain is broken
+    # where the stop between runs says nothing (the vehicle moved, or the course went on)
+    gear_change = np.concatenate([[False], flip])
+    chain = np.cumsum(~gear_change)
+    parity = np.cumsum(gear_change) % 2
+    dt = np.gradient(t)
+    distance = np.array([float(np.sum(speed[a:b + 1] * dt[a:b + 1]))
+                         for a, b in zip(starts, ends)])
+    duration = np.array([float(np.sum(dt[a:b + 1])) for a, b in zip(starts, ends)])
+    backwards_run = np.zeros(starts.size, bool)
+    for c in np.unique(chain[gear_change]):
+        runs = np.flatnonzero(chain == c)
+        odd = parity[runs] == 1
+        d_odd, d_even = distance[runs][odd].sum(), distance[runs][~odd].sum()
+        if math.isclose(d_odd, d_even, rel_tol=0.1):
+            v_odd = d_odd / max(duration[runs][odd].sum(), 1e-9)
+            v_even = d_even / max(duration[runs][~odd].sum(), 1e-9)
+            odd_forward = v_odd > v_even
+            counters['vehicle_reversed_ambiguous'] += 1
+        else:
+            odd_forward = d_odd > d_even
+        backwards_run[runs] = odd != odd_forward
+    for k in np.flatnonzero(backwards_run):
+        reverse[starts[k]:ends[k] + 1] = True
+    counters['vehicle_reversed_stretches'] += int(backwards_run.sum())
+    counters['vehicle_reversed_m'] += int(round(float(distance[backwards_run].sum())))
+    return reverse
