@@ -255,6 +255,14 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
     if dropped:
         p0, p1, p2, velocity = p0[finite], p1[finite], p2[finite], velocity[finite]
     if spherical:
+        if p1.size and (np.abs(p1).max() > math.pi + 1e-6
+                        or np.abs(p2).max() > math.pi / 2 + 1e-6):
+            # a driver writing degrees: angles up to 60 cannot be radians, and read as such
+            # they scatter the targets round the radar (a probe's recording failed with
+            # 'vehicle never seen' and advice for a sparse radar)
+            raise DecodeError(f'PointCloud2 azimuth/elevation reach {np.abs(p1).max():.1f} / '
+                              f'{np.abs(p2).max():.1f}, beyond +-pi / +-pi/2: the spherical '
+                              'layout takes radians (degrees written?)')
         horizontal = p0 * np.cos(p2)
         positions = np.column_stack([horizontal * np.cos(p1), horizontal * np.sin(p1),
                                      p0 * np.sin(p2)])

@@ -118,6 +118,20 @@ def test_spherical(ts: Any, big_endian: bool, datatype: int) -> None:
     np.testing.assert_array_equal(frame.radial_velocity_mps, [2.0, -7.0, 0.5])
 
 
+@pytest.mark.parametrize('angle', ['azimuth', 'elevation'])
+def test_spherical_angles_in_degrees_are_refused_by_name(ts: Any, angle: str) -> None:
+    """Angles beyond +-pi (azimuth) or +-pi/2 (elevation) cannot be radians: a driver
+    writing degrees gets a DecodeError that says so, not targets scattered round the radar
+    (a probe's recording failed as 'vehicle never seen' with advice for a sparse radar)."""
+    points = [{'range': 20.0, 'azimuth': 0.3, 'elevation': -0.05, 'doppler': 1.0},
+              {'range': 30.0, 'azimuth': -0.2, 'elevation': 0.02, 'doppler': 2.0}]
+    points[1][angle] = 45.0 if angle == 'azimuth' else -5.0
+    fields = [(n, i * 4, FLOAT32)
+              for i, n in enumerate(('range', 'azimuth', 'elevation', 'doppler'))]
+    with pytest.raises(DecodeError, match='radians'):
+        m.decode_pointcloud(hand_cloud(ts, fields, points, point_step=16))
+
+
 def test_xyz_preferred_over_spherical(ts: Any) -> None:
     fields = [('x', 0, FLOAT32), ('y', 4, FLOAT32), ('z', 8, FLOAT32), ('range', 12, FLOAT32),
               ('azimuth', 16, FLOAT32), ('elevation', 20, FLOAT32), ('velocity', 24, FLOAT32)]
