@@ -347,10 +347,12 @@ def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
                      'or no time sync), set sync.time_offset to about '
                      f'{-offset_ms / 1000:.1f}.')
     if jump_ms is not None:
-        notes.append(f'The radar\'s header stamps jump by {jump_ms / 1000:+.1f} s against the '
-                     f'recording\'s clock {counters.get("radar_stamp_jump_at_ms", 0) / 1000:.0f} '
-                     's after its first message (a clock that lost its sync?): the frames on '
-                     'one side of the jump are paired with the wrong poses or none.')
+        digits = 1 if abs(jump_ms) >= 1000 else 2
+        at_s = counters.get('radar_stamp_jump_at_ms', 0) / 1000
+        notes.append(f'The radar\'s header stamps jump by {jump_ms / 1000:+.{digits}f} s against '
+                     f'the recording\'s clock {at_s:.0f} s after its first message (a clock '
+                     'that lost its sync?): the frames on one side of the jump are paired with '
+                     'the wrong poses or none.')
     return notes + _outside_poses_notes(recording, config, name_jump=jump_ms is None)
 
 
@@ -471,6 +473,11 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
         notes.append(f'{malformed} radar message{"s" if malformed != 1 else ""} could not be '
                      'decoded (truncated or malformed PointCloud2) and '
                      f'{"were" if malformed != 1 else "was"} skipped; check the driver.')
+    copies = recording.counters.get('radar_messages_duplicate', 0)
+    if copies:
+        notes.append(f'{copies} radar message{"s" if copies != 1 else ""} repeated an earlier '
+                     'one exactly (same stamp, same targets: the topic recorded twice?) and '
+                     f'{"were" if copies != 1 else "was"} dropped.')
     merged = recording.counters.get('radar_messages_merged', 0)
     if merged:
         notes.append(f'{merged} radar messages shared their header stamp with another and were '

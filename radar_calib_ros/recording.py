@@ -318,7 +318,8 @@ class RecordingBuilder:
         """
         if not self._frame_stamps:
             raise InsufficientDataError('read', 'no radar frame in the recording')
-        order = np.argsort(np.asarray(self._frame_stamps, np.int64), kind='stable')
+        order = self._without_copies(
+            np.argsort(np.asarray(self._frame_stamps, np.int64), kind='stable'))
         frame_stamps = np.asarray(self._frame_stamps, np.int64)[order]
         counts = np.array([self._frame_positions[i].shape[0] for i in order], np.int64)
         if counts.sum():
@@ -338,7 +339,8 @@ class RecordingBuilder:
         counters = dict(self.counters)
         counters.update(_receipt_checks(np.asarray(self._radar_lag, np.int64),
                                         np.asarray(self._radar_received, np.int64),
-                                        np.asarray(self._pose_lag, np.int64)))
+                                        np.asarray(self._pose_lag, np.int64),
+                                        np.asarray(self._pose_received, np.int64)))
         merged = int(order.size - frame_stamps.size)
         if merged:
             counters['radar_messages_merged'] = merged
@@ -347,6 +349,33 @@ class RecordingBuilder:
         return Recording(frame_stamps, targets, vehicle, frame,
                          radar_frame_id=self._config.radar.frame_id, counters=counters,
                          fix_sigma_m=self._fix_sigma())
+
+    def _without_copies(self, order: I64) -> I64:
+        """``order`` without the radar messages that repeat an earlier one exactly (same
+        stamp, same targets), counted as ``radar_messages_duplicate``.
+
+        Why: a topic recorded twice (two recorders, a bridge and the driver) doubles every
+        scan; merged as the pieces of one scan, each target would count twice, and the note
+        blamed a driver that publishes scans in pieces (an independent probe)."""
+        stamps = np.asarray(self._frame_stamps, np.int64)[order]
+        same = np.flatnonzero(stamps[1:] == stamps[:-1]) + 1
+        if same.size == 0:
+            return order
+        drop = np.zeros(order.size, bool)
+        for k in same:
+            j = k - 1
+            while j >= 0 and stamps[j] == stamps[k]:
+                a, b = int(order[k]), int(order[j])
+                if (not drop[j] and np.array_equal(self._frame_positions[a],
+                                                   self._frame_positions[b])
+                        and np.array_equal(self._frame_velocities[a],
+                                           self._frame_velocities[b])):
+                    drop[k] = True
+                    break
+                j -= 1
+        if drop.any():
+            self.counters['radar_messages_duplicate'] = int(drop.sum())
+        return order[~drop]
 
     def _fix_sigma(self) -> tuple[float, float] | None:
         """Median declared 1-sigma of the fixes (horizontal, vertical), None if none."""
@@ -499,7 +528,8 @@ _RECEIPT_OFFSET_S = 1.0
 _RECEIPT_WINDOW = 15
 
 
-def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64) -> dict[str, int]:
+def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
+                    pose_received: I64 | None = None) -> dict[str, int]:
     """Counters from the receipt lags (received - header stamp, ns, in received order): the
     radar stamps' offset from the poses' ('radar_stamp_offset_ms': radar minus pose; the
     notes judge it against ``sync.time_offset``), and the largest lasting step of the lag
@@ -521,7 +551,51 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64) -> dict[
         # a lag that drops is a stamp that jumps forward
         out['radar_stamp_jump_ms'] = int(round(-step[k] / 1e6))
         out['radar_stamp_jump_at_ms'] = int((radar_received[k + 1] - radar_received[0]) // 10**6)
+        return out
+    step_at = _small_clock_step(radar_lag, radar_received, pose_lag, pose_received)
+    if step_at is not None:
+        out['radar_stamp_jump_ms'], out['radar_stamp_jump_at_ms'] = step_at
     return out
+
+
+#: Messages on either side of a smaller step of the radar's clock (about 10 s at 15 Hz),
+#: and the least such step named [s]: an NTP correction of a few hundred milliseconds.
+_RECEIPT_STEP_WINDOW = 150
+_RECEIPT_STEP_S = 0.15
+
+
+def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
+                      pose_received: I64 | None) -> tuple[int, int] | None:
+    """(jump [ms], when [ms after the first radar message]) of a lasting step of the radar
+    stamps' receipt lag below a second, or None.
+
+    Why: an NTP correction steps the radar's clock by tenths of a second; the passes on one
+    side are then paired with poses that far off, the clock offset the fit finds is a blend,
+    and passes were lost without a word (an independent probe: +0.2 s, 2 of 6 passes). The
+    lag's median over ``_RECEIPT_STEP_WINDOW`` messages is steady to a few milliseconds
+    even under V2X latency jitter of a second, so a step of ``_RECEIPT_STEP_S`` stands out;
+    where the poses' receipt lag steps alike, the recorder's clock moved, not the radar's.
+    """
+    w = _RECEIPT_STEP_WINDOW
+    if radar_lag.size < 2 * w:
+        return None
+    lag = radar_lag.astype(np.float64)
+    smooth = ndimage.median_filter(lag, size=w, mode='nearest')
+    h = w // 2
+    change = smooth[2 * h:] - smooth[:-2 * h]
+    k = int(np.argmax(np.abs(change))) + h
+    k = min(max(k, w), lag.size - w)
+    step = float(np.median(lag[k:]) - np.median(lag[:k]))
+    if abs(step) < _RECEIPT_STEP_S * 1e9:
+        return None
+    if pose_received is not None and pose_received.size == pose_lag.size:
+        before = pose_received < radar_received[k]
+        if before.sum() >= w and (~before).sum() >= w:
+            pose_step = float(np.median(pose_lag[~before]) - np.median(pose_lag[before]))
+            if abs(pose_step - step) < 0.5 * abs(step):
+                return None
+    # a lag that drops is a stamp that jumps forward
+    return int(round(-step / 1e6)), int((radar_received[k] - radar_received[0]) // 10**6)
 
 
 def _unaugmented_stretches(stamps_ns: I64, status: F64) -> dict[str, int]:

@@ -524,6 +524,28 @@ def test_messages_sharing_a_header_stamp_are_one_scan() -> None:
                for n in _data_notes(rec, []))
 
 
+def test_exact_copies_of_radar_messages_are_dropped_not_merged() -> None:
+    """A topic recorded twice: each scan twice, identical. The copies are dropped (each
+    target once), counted and named; pieces of a scan (different targets) still merge."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    builder, _, _ = circle_builder()
+    for k in range(3):
+        pos = np.array([[10.0 * k, 1.0, 0.0], [10.0 * k, 2.0, 0.0]])
+        for _ in range(2):
+            builder.add_radar_frame(RadarFrame(T0 + (k + 1) * 10**8, pos.copy(),
+                                               np.full(2, float(k))))
+    other_piece = np.array([[99.0, 0.0, 0.0]])
+    builder.add_radar_frame(RadarFrame(T0 + 10**8, other_piece, np.zeros(1)))
+    rec = builder.build()
+    assert np.bincount(rec.targets.frame_index).tolist() == [1, 3, 2, 2]
+    assert rec.counters['radar_messages_duplicate'] == 3
+    assert rec.counters['radar_messages_merged'] == 1
+    notes = _data_notes(rec, [])
+    assert any('3 radar messages repeated an earlier one exactly' in n for n in notes)
+    assert any('1 radar messages shared their header stamp' in n for n in notes)
+
+
 @pytest.mark.parametrize('scale, expected', [(1.0, None), (1.002, None), (1.004, -4),
                                              (1.01, -10)])
 def test_an_odometry_speed_scale_error_is_rescaled_to_the_fixes(
@@ -721,3 +743,35 @@ def test_a_constant_ins_heading_offset_is_taken_off(offset_deg: float) -> None:
     # the twist (the vehicle's, forwards) still points along the travel
     course = np.arctan2(rec.vehicle.velocities_mps[:, 1], rec.vehicle.velocities_mps[:, 0])
     assert np.median(np.degrees(np.abs(_wrap(course - truth)))) < 0.5
+
+
+def test_a_small_step_of_the_radar_clock_is_named_and_jitter_is_not() -> None:
+    """An NTP correction of 0.2 s halfway (an independent probe lost 2 of 6 passes to it
+    without a word) is found from the receipt lags; V2X latency jitter of a second is not a
+    step, nor is a step of the recorder's own clock (the poses' receipt lag steps alike)."""
+    from radar_calib_ros.recording import _receipt_checks
+
+    rng = np.random.default_rng(2)
+    n = 4000
+    received = np.arange(n, dtype=np.int64) * 66_666_667
+    latency = rng.integers(5, 40, n).astype(np.int64) * 1_000_000
+    pose_received = np.arange(3 * n, dtype=np.int64) * 22_222_222
+    pose_lag = rng.integers(2, 8, 3 * n).astype(np.int64) * 1_000_000
+    assert 'radar_stamp_jump_ms' not in _receipt_checks(latency, received, pose_lag,
+                                                        pose_received)
+    for step_ms in (200, -150, -500):
+        stepped = latency.copy()
+        stepped[2500:] -= step_ms * 1_000_000     # stamps later by step_ms from 2500 on
+        out = _receipt_checks(stepped, received, pose_lag, pose_received)
+        assert out['radar_stamp_jump_ms'] == pytest.approx(step_ms, abs=10)
+        assert out['radar_stamp_jump_at_ms'] == pytest.approx(2500 * 66.67, abs=5000)
+    v2x = rng.integers(300, 1500, n).astype(np.int64) * 1_000_000
+    assert 'radar_stamp_jump_ms' not in _receipt_checks(v2x, received, pose_lag,
+                                                        pose_received)
+    # the recorder's clock stepped: both receipt lags step together
+    recorder = latency.copy()
+    recorder[2500:] += 300_000_000
+    pose_stepped = pose_lag.copy()
+    pose_stepped[pose_received >= received[2500]] += 300_000_000
+    assert 'radar_stamp_jump_ms' not in _receipt_checks(recorder, received, pose_stepped,
+                                                        pose_received)
