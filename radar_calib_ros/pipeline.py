@@ -473,6 +473,10 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
         notes.append(f'{malformed} radar message{"s" if malformed != 1 else ""} could not be '
                      'decoded (truncated or malformed PointCloud2) and '
                      f'{"were" if malformed != 1 else "was"} skipped; check the driver.')
+    origin = recording.counters.get('targets_at_origin', 0)
+    if origin:
+        notes.append(f'{origin} radar targets at exactly (0, 0, 0), the radar\'s own antenna, '
+                     'were dropped (a driver that pads a fixed-size target list with zeros?).')
     copies = recording.counters.get('radar_messages_duplicate', 0)
     if copies:
         notes.append(f'{copies} radar message{"s" if copies != 1 else ""} repeated an earlier '

@@ -150,6 +150,13 @@ class RecordingBuilder:
             raise ValueError('radar frame arrays must have shapes (n, 3) and (n,)')
         positions = np.asarray(frame.positions_m, np.float64)
         velocities = np.asarray(frame.radial_velocity_mps, np.float64)
+        # No radar detects at its own antenna: targets at exactly (0, 0, 0) are the unused
+        # slots of a fixed-size target list, zero-filled (an independent probe's: 81 % of
+        # the 'moving' targets, named as rain)
+        at_origin = ~np.any(positions != 0.0, axis=1)
+        if at_origin.any():
+            self.counters['targets_at_origin'] += int(at_origin.sum())
+            positions, velocities = positions[~at_origin], velocities[~at_origin]
         self._frame_stamps.append(int(frame.stamp_ns))
         self._frame_positions.append(positions)
         self._frame_velocities.append(velocities)

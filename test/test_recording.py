@@ -31,7 +31,7 @@ def _odom(stamp: int, yaw_true: float, speed: float = 0.0, yaw_rate: float = 0.0
 
 
 def _one_frame(builder: RecordingBuilder) -> None:
-    builder.add_radar_frame(RadarFrame(T0, np.zeros((1, 3)), np.zeros(1)))
+    builder.add_radar_frame(RadarFrame(T0, np.array([[5.0, 0.0, 0.0]]), np.zeros(1)))
 
 
 def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: float = 50.0,
@@ -775,3 +775,22 @@ def test_a_small_step_of_the_radar_clock_is_named_and_jitter_is_not() -> None:
     pose_stepped[pose_received >= received[2500]] += 300_000_000
     assert 'radar_stamp_jump_ms' not in _receipt_checks(recorder, received, pose_stepped,
                                                         pose_received)
+
+
+def test_targets_at_the_radar_origin_are_padding_and_dropped() -> None:
+    """A driver with a fixed-size target list fills the unused slots with zeros: no radar
+    detects at its own antenna, so (0, 0, 0) targets are dropped, counted and named (an
+    independent probe's were 81 % of the 'moving' targets, named as rain)."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    builder, _, _ = circle_builder()
+    real = np.array([[12.0, 3.0, -4.0], [0.0, 0.0, 1e-3]])
+    padded = np.vstack([real, np.zeros((6, 3))])
+    velocity = np.concatenate([[2.0, -1.0], np.zeros(6)])
+    builder.add_radar_frame(RadarFrame(T0 + 10**8, padded, velocity))
+    rec = builder.build()
+    assert rec.counters['targets_at_origin'] == 6
+    frame = rec.targets.frame_index == 1
+    np.testing.assert_array_equal(rec.targets.positions_m[frame], real)
+    np.testing.assert_array_equal(rec.targets.radial_velocity_mps[frame], [2.0, -1.0])
+    assert any('6 radar targets at exactly (0, 0, 0)' in n for n in _data_notes(rec, []))
