@@ -473,6 +473,19 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
         notes.append(f'{malformed} radar message{"s" if malformed != 1 else ""} could not be '
                      'decoded (truncated or malformed PointCloud2) and '
                      f'{"were" if malformed != 1 else "was"} skipped; check the driver.')
+    bad_odometry = recording.counters.get('odometry_invalid', 0)
+    if bad_odometry:
+        share = 100 * bad_odometry / max(recording.counters.get('odometry', 0), 1)
+        notes.append(f'{bad_odometry} Odometry message{"s" if bad_odometry != 1 else ""} '
+                     f'({share:.0f} %) had no usable pose (a NaN, or a quaternion far from unit '
+                     'length: an INS still aligning writes zeros) and '
+                     f'{"were" if bad_odometry != 1 else "was"} left out; where no other pose '
+                     'covers them, the radar frames there wait for a later pass.')
+    bad_fixes = recording.counters.get('fixes_invalid', 0)
+    if bad_fixes:
+        notes.append(f'{bad_fixes} NavSatFix message{"s" if bad_fixes != 1 else ""} had no '
+                     'usable position (NaN, or latitude / longitude out of range) and '
+                     f'{"were" if bad_fixes != 1 else "was"} left out.')
     origin = recording.counters.get('targets_at_origin', 0)
     if origin:
         notes.append(f'{origin} radar targets at exactly (0, 0, 0), the radar\'s own antenna, '

@@ -251,6 +251,10 @@ def test_invalid_fixes_and_odometry_dropped_and_counted() -> None:
     assert rec.counters['fixes'] == 9 and rec.counters['fixes_no_fix'] == 2
     assert rec.counters['fixes_invalid'] == 3
     assert rec.counters['odometry'] == 4 and rec.counters['odometry_invalid'] == 2
+    from radar_calib_ros.pipeline import _data_notes
+    notes = _data_notes(rec, [])
+    assert any(n.startswith('2 Odometry messages (50 %) had no usable pose') for n in notes)
+    assert any(n.startswith('3 NavSatFix messages had no usable position') for n in notes)
     # the standalone and the SBAS fix (status 0, 1) amid RTK ones are kept as received but
     # left out of the vehicle track
     # (test_rtk_lost_for_stretches_is_named_with_their_count_and_length)
