@@ -388,6 +388,15 @@ def _length(metres: float) -> str:
     return f'{100 * metres:.0f} cm' if metres < 0.1 else f'{metres:.1f} m'
 
 
+def _dropped(count: int, noun: str, what: Callable[[int], str], done: str) -> str:
+    """'3 radar messages <what> and were <done>.', or '' for none."""
+    if not count:
+        return ''
+    plural = count != 1
+    return (f'{count} {noun}{"s" if plural else ""} {what(count)} and '
+            f'{"were" if plural else "was"} {done}.')
+
+
 def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
     source: ``corrections`` made on the way (a flipped radial-velocity sign, folded
@@ -473,28 +482,23 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
         notes.append(f'{malformed} radar message{"s" if malformed != 1 else ""} could not be '
                      'decoded (truncated or malformed PointCloud2) and '
                      f'{"were" if malformed != 1 else "was"} skipped; check the driver.')
-    bad_odometry = recording.counters.get('odometry_invalid', 0)
-    if bad_odometry:
-        share = 100 * bad_odometry / max(recording.counters.get('odometry', 0), 1)
-        notes.append(f'{bad_odometry} Odometry message{"s" if bad_odometry != 1 else ""} '
-                     f'({share:.0f} %) had no usable pose (a NaN, or a quaternion far from unit '
-                     'length: an INS still aligning writes zeros) and '
-                     f'{"were" if bad_odometry != 1 else "was"} left out; where no other pose '
-                     'covers them, the radar frames there wait for a later pass.')
-    bad_fixes = recording.counters.get('fixes_invalid', 0)
-    if bad_fixes:
-        notes.append(f'{bad_fixes} NavSatFix message{"s" if bad_fixes != 1 else ""} had no '
-                     'usable position (NaN, or latitude / longitude out of range) and '
-                     f'{"were" if bad_fixes != 1 else "was"} left out.')
-    origin = recording.counters.get('targets_at_origin', 0)
-    if origin:
-        notes.append(f'{origin} radar targets at exactly (0, 0, 0), the radar\'s own antenna, '
-                     'were dropped (a driver that pads a fixed-size target list with zeros?).')
-    copies = recording.counters.get('radar_messages_duplicate', 0)
-    if copies:
-        notes.append(f'{copies} radar message{"s" if copies != 1 else ""} repeated an earlier '
-                     'one exactly (same stamp, same targets: the topic recorded twice?) and '
-                     f'{"were" if copies != 1 else "was"} dropped.')
+    counters = recording.counters
+    odometry = max(counters.get('odometry', 0), 1)
+    notes += [_dropped(counters.get('odometry_invalid', 0), 'Odometry message',
+                       lambda n: f'({100 * n / odometry:.0f} %) had no usable pose (a NaN, or a '
+                       'quaternion far from unit length: an INS still aligning writes zeros)',
+                       'left out; where no other pose covers them, the radar frames there '
+                       'wait for a later pass'),
+              _dropped(counters.get('fixes_invalid', 0), 'NavSatFix message',
+                       lambda n: 'had no usable position (NaN, or latitude / longitude out of '
+                       'range)', 'left out'),
+              _dropped(counters.get('targets_at_origin', 0), 'radar target',
+                       lambda n: 'lay at exactly (0, 0, 0), the radar\'s own antenna,',
+                       'dropped (a driver that pads a fixed-size target list with zeros?)'),
+              _dropped(counters.get('radar_messages_duplicate', 0), 'radar message',
+                       lambda n: 'repeated an earlier one exactly (same stamp, same targets: '
+                       'the topic recorded twice?)', 'dropped')]
+    notes = [n for n in notes if n]
     merged = recording.counters.get('radar_messages_merged', 0)
     if merged:
         notes.append(f'{merged} radar messages shared their header stamp with another and were '

@@ -797,4 +797,4 @@ def test_targets_at_the_radar_origin_are_padding_and_dropped() -> None:
     frame = rec.targets.frame_index == 1
     np.testing.assert_array_equal(rec.targets.positions_m[frame], real)
     np.testing.assert_array_equal(rec.targets.radial_velocity_mps[frame], [2.0, -1.0])
-    assert any('6 radar targets at exactly (0, 0, 0)' in n for n in _data_notes(rec, []))
+    assert any('6 radar targets lay at exactly (0, 0, 0)' in n for n in _data_notes(rec, []))
