@@ -18,6 +18,7 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core._angles import wrap_angle
 from radar_calib_ros.errors import ConfigError, InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.types import (
@@ -456,11 +457,11 @@ class RecordingBuilder:
             # would condemn a good twist, ~1.4 m/s over 2 s; a zero or mis-framed twist, or a
             # wrong heading, still misses by the speed.
             coarse = _position_velocities(t, positions[:, :2], _TWIST_CHECK_SPAN_S)
-            forward = np.interp(t, to, v_level[:, 0])
-            yaw = _checked_orientation(t, coarse, measured, yaw_true_at, lat, lon, frame,
-                                       cfg.vehicle.min_heading_speed, self.counters, forward)
             vx = np.interp(t, to, v_level[:, 0])
             vy = np.interp(t, to, v_level[:, 1])
+            yaw, offset = _checked_orientation(t, coarse, measured, positions, yaw_true_at, lat,
+                                               lon, frame, cfg.vehicle.min_heading_speed,
+                                               self.counters, vx)
             if not _tilted(q):
                 # a heading-only orientation on a grade: the fixes' climb tells the tilt
                 level = _grade_cosine(t, positions, np.hypot(vx, vy), self._fix_sigma())
@@ -468,10 +469,9 @@ class RecordingBuilder:
             c, s = np.cos(yaw), np.sin(yaw)
             yaw_rate = np.interp(t, to, rate)
             twist_world = np.column_stack([c * vx - s * vy, s * vx + c * vy])
-            if 'odometry_heading_offset_cdeg' in self.counters:
+            if offset:
                 # an INS turned on its mount gives its twist in its own frame too: then the
                 # heading as given turns it into the world, not the corrected one
-                offset = math.radians(self.counters['odometry_heading_offset_cdeg'] / 100.0)
                 c2, s2 = np.cos(yaw + offset), np.sin(yaw + offset)
                 own_frame = np.column_stack([c2 * vx - s2 * vy, s2 * vx + c2 * vy])
                 if _twist_mismatch(own_frame, coarse) < _twist_mismatch(twist_world, coarse):
@@ -659,12 +659,13 @@ _ORIENTATION_SAMPLES = 10
 _REVERSE_TWIST_MPS = 0.5
 
 
-def _checked_orientation(t: F64, coarse: F64, measured: F64, yaw_true: F64, lat: F64,
-                         lon: F64, frame: LocalFrame, min_speed: float,
-                         counters: Counter[str], forward_mps: F64 | None = None) -> F64:
+def _checked_orientation(t: F64, coarse: F64, measured: F64, positions: F64, yaw_true: F64,
+                         lat: F64, lon: F64, frame: LocalFrame, min_speed: float,
+                         counters: Counter[str], forward_mps: F64 | None = None
+                         ) -> tuple[F64, float]:
     """(n,) local-grid heading from the Odometry orientation where it describes the
-    vehicle's travel, else from a compass-convention reading of it, else from the course
-    over ground.
+    vehicle's travel (less its constant offset, returned too: ``_heading_offset``), else
+    from a compass-convention reading of it, else from the course over ground.
 
     Why: the heading turns the vehicle's box and its body-frame twist. Drivers in the field
     write a compass heading (clockwise from north) into the quaternion, or leave it the
@@ -681,7 +682,7 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, yaw_true: F64, lat:
     yaw = frame.true_yaw_to_local(yaw_true, lat, lon)
     moving = np.hypot(coarse[:, 0], coarse[:, 1]) > max(min_speed, 2.0)
     if int(moving.sum()) < _ORIENTATION_SAMPLES:
-        return yaw
+        return yaw, 0.0
     course = np.arctan2(coarse[moving, 1], coarse[moving, 0])
     courses = [course]
     if forward_mps is not None:
@@ -690,23 +691,28 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, yaw_true: F64, lat:
             courses.append(course + np.pi * backwards)
 
     def disagreement(heading: F64) -> float:
-        return min(float(np.median(np.abs((heading[moving] - c + np.pi) % (2 * np.pi)
-                                          - np.pi))) for c in courses)
+        return min(_median_turn(heading[moving], c) for c in courses)
 
     as_given = disagreement(yaw)
     if as_given <= _ORIENTATION_TOLERANCE_RAD:
-        return yaw - _heading_offset(yaw[moving], courses, counters)
+        offset = _heading_offset(yaw[moving], courses, counters)
+        return yaw - offset, offset
     compass = frame.true_yaw_to_local(np.pi / 2.0 - yaw_true, lat, lon)
     if disagreement(compass) <= _ORIENTATION_TOLERANCE_RAD:
         counters['odometry_orientation_compass'] = 1
         _LOG.warning('the Odometry orientation reads as a compass heading (clockwise from '
                      'north), not as REP-103 yaw (counter-clockwise from east): used so')
-        return compass
+        return compass, 0.0
     counters['odometry_orientation_replaced'] = 1
     _LOG.warning('the Odometry orientation does not describe the vehicle\'s travel (median '
                  '%.0f deg off its course over ground): the heading is taken from the course '
                  'over ground instead', math.degrees(as_given))
-    return _course_over_ground(t, measured, min_speed, counters)[0]
+    return _course_over_ground(t, measured, min_speed, counters, positions)[0], 0.0
+
+
+def _median_turn(heading: F64, course: F64) -> float:
+    """Median absolute angle between a heading and a course [rad]."""
+    return float(np.median(np.abs(wrap_angle(heading - course))))
 
 
 #: A constant heading offset of the Odometry against the course over ground smaller than
@@ -725,9 +731,8 @@ def _heading_offset(heading: F64, courses: list[F64], counters: Counter[str]) ->
     median of heading minus course over the moving samples is the offset; of the two
     readings of the course (with and without reversals) the one the heading agrees with.
     """
-    best = min(courses, key=lambda c: float(np.median(np.abs(
-        (heading - c + np.pi) % (2 * np.pi) - np.pi))))
-    offset = float(np.median((heading - best + np.pi) % (2 * np.pi) - np.pi))
+    best = min(courses, key=lambda c: _median_turn(heading, c))
+    offset = float(np.median(wrap_angle(heading - best)))
     if abs(offset) < _HEADING_OFFSET_MIN_RAD:
         return 0.0
     counters['odometry_heading_offset_cdeg'] = int(round(100.0 * math.degrees(offset)))
@@ -919,10 +924,7 @@ def _checked_twist(t: F64, positions: F64, measured: F64, coarse: F64, twist_wor
     tolerance = max(_TWIST_TOLERANCE_MPS,
                     _TWIST_TOLERANCE_FRACTION * float(np.median(speed[moving])))
 
-    def mismatch(v: F64) -> float:
-        return float(np.median(np.linalg.norm(v[moving] - coarse[moving], axis=1)))
-
-    body, enu = mismatch(twist_world), mismatch(twist_as_given)
+    body, enu = _twist_mismatch(twist_world, coarse), _twist_mismatch(twist_as_given, coarse)
     if body <= tolerance:
         scale = _speed_scale(t, positions, twist_world, moving, yaw_rate)
         if scale != 1.0:
@@ -1019,7 +1021,7 @@ def _finite_difference(t: F64, x: F64, half_span_s: float = 0.2) -> F64:
 
 
 def _course_over_ground(t: F64, velocities: F64, min_speed: float,
-                        counters: Counter[str] | None = None, positions: F64 | None = None,
+                        counters: Counter[str], positions: F64,
                         half_span_s: float = 0.5) -> tuple[F64, F64]:
     """Heading from the course over ground where the speed allows it, held (interpolated
     on the circle) across slow and stopped stretches where the course is noise.
@@ -1038,11 +1040,7 @@ def _course_over_ground(t: F64, velocities: F64, min_speed: float,
     hi = np.searchsorted(t, t + half_span_s, side='right')
     smoothed = sums[hi] - sums[lo]
     course = np.arctan2(smoothed[:, 1], smoothed[:, 0])
-    if counters is not None:
-        if positions is None:  # where the positions are not at hand: the velocities' path
-            steps = 0.5 * (velocities[1:, :2] + velocities[:-1, :2]) * np.diff(t)[:, None]
-            positions = np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
-        course = course + np.pi * _reversing(t, course, good, speed, positions, counters)
+    course = course + np.pi * _reversing(t, course, good, speed, positions, counters)
     if good.sum() >= 2:
         yaw = _interp_angle(t, t[good], course[good])
     elif good.any():
@@ -1082,7 +1080,7 @@ def _reversing(t: F64, course: F64, good: np.ndarray, speed: F64, positions: F64
     ends = np.concatenate([idx[breaks], [idx[-1]]])
     if starts.size < 2:
         return reverse
-    turn = np.abs((course[starts[1:]] - course[ends[:-1]] + np.pi) % (2 * np.pi) - np.pi)
+    turn = np.abs(wrap_angle(course[starts[1:]] - course[ends[:-1]]))
     moved = np.linalg.norm(positions[starts[1:], :2] - positions[ends[:-1], :2], axis=1)
     flip = (turn > _REVERSE_FLIP_RAD) & (moved < _REVERSE_STOP_MOVE_M)
     if not flip.any():
