@@ -290,9 +290,12 @@ def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
             config: CalibConfig) -> list[str]:
     advice: list[str] = []
     if n_passes < _FEW_PASSES:
-        advice.append(f'Only {n_passes} passes of the calibration vehicle agree; drive '
-                      f'through the view at least {_FEW_PASSES} times, on different lanes '
-                      'and in both directions.')
+        # Said even when the result looks tight: the reported uncertainty is the passes'
+        # agreement, and two or three passes show it poorly.
+        advice.append(f'Only {n_passes} passes of the calibration vehicle through the view: '
+                      'the uncertainty comes from how well they agree, and so few show it '
+                      f'poorly; drive through the view at least {_FEW_PASSES} times, on '
+                      'different lanes and in both directions.')
     if len(headings_deg) >= 2:
         h = np.radians(headings_deg)
         mean = math.atan2(float(np.sin(h).mean()), float(np.cos(h).mean()))
