@@ -300,31 +300,64 @@ def test_a_clock_shift_the_final_fit_does_not_confirm_is_not_blamed_on_the_clock
     assert 'vehicle.*' in note
 
 
-def test_a_sparse_radar_refused_at_stage_6_is_told_what_to_set(
+def test_a_sparse_radar_refused_at_stage_6_is_calibrated_with_sparse_settings(
         drive: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     """A radar with about one target per road user a frame breaks the default clustering's
-    tracks up (an independent recording was refused without a word on why); the failure
-    names the settings that calibrated it. A radar with several targets a frame gets no
-    such hint."""
+    tracks up (an independent recording was refused without a word on why). When stage 6
+    then finds no agreement, stages 2-6 run again with looser clustering and shorter tracks,
+    and a note names the settings. A radar with several targets a frame is left alone, and
+    when the retry fails as well the refusal says both."""
     from radar_calib_ros.io.bag import read_recording
-    from radar_calib_ros.pipeline import _sparse_radar_hint, run_calibration, track_targets
+    from radar_calib_ros.pipeline import _sparse_radar_config, run_calibration, track_targets
 
     summary, config = drive
     recording = read_recording(summary.paths.bag, config)
-    assert _sparse_radar_hint(recording, track_targets(recording, config), config) is None
-    # one target in ten kept: what still forms tracks has about one a frame
-    keep = np.random.default_rng(0).random(len(recording.targets)) < 0.1
+    assert _sparse_radar_config(recording, track_targets(recording, config), config) is None
+    # three targets in twenty kept: what still forms tracks has about one a frame
+    keep = np.random.default_rng(0).random(len(recording.targets)) < 0.15
     sparse = dataclasses.replace(recording, targets=recording.targets.subset(
         np.flatnonzero(keep)))
-    hint = _sparse_radar_hint(sparse, track_targets(sparse, config), config)
-    assert hint is not None and 'cluster.min_samples: 2, cluster.accumulate_frames: 6' in hint
+    found = _sparse_radar_config(sparse, track_targets(sparse, config), config)
+    assert found is not None and found[1] <= 2.0
+    loose = found[0]
+    assert (loose.cluster.min_samples, loose.cluster.accumulate_frames,
+            loose.associate.min_track_frames, loose.hypotheses.min_track_frames) == (2, 6, 5, 6)
+    # already that loose: nothing more to try
+    assert _sparse_radar_config(sparse, track_targets(sparse, loose), loose) is None
+
+    # the defaults refuse this drive; the sparse settings calibrate it, near the truth
+    with pytest.raises(InsufficientDataError):
+        pipeline._hypotheses(*_paper_inputs(sparse, config))
+    result = run_calibration(sparse, config)
+    notes = result.quality.extra['data_notes']
+    assert any('cluster.min_samples: 2, cluster.accumulate_frames: 6' in n for n in notes)
+    from radar_calib_ros.groundtruth import calibration_errors, load_ground_truth
+    errors = calibration_errors(result.calibration(config),
+                                load_ground_truth(summary.paths.bag))
+    assert errors['horizontal_m'] < 0.25 and errors['rotation_deg'] < 0.5
+
+    real = pipeline._hypotheses
 
     def refuse(*args: Any, **kwargs: Any) -> Any:
         raise InsufficientDataError('hypotheses', 'no consistent calibration-vehicle track')
     monkeypatch.setattr(pipeline, '_hypotheses', refuse)
     with pytest.raises(InsufficientDataError, match=r'vehicle track\. The radar reports few '
-                       r'targets per road user \(a median of 1 a frame'):
+                       r'targets per road user \(a median of 1 a frame.*tried as well and '
+                       r'failed too \(hypotheses: no consistent'):
         run_calibration(sparse, config)
+    # a dense radar's refusal stays as it was
+    with pytest.raises(InsufficientDataError) as refused:
+        run_calibration(recording, config)
+    assert 'sparse' not in str(refused.value)
+    monkeypatch.setattr(pipeline, '_hypotheses', real)
+
+
+def _paper_inputs(recording: Any, config: CalibConfig) -> tuple[Any, ...]:
+    """The tracks, recording, ground plane and config stage 6 gets."""
+    tracked = pipeline.track_targets(recording, config)
+    ground, _ = pipeline._ground_plane(recording, tracked, config)
+    tracks = tuple(pipeline.track.track_clusters(recording, tracked, ground, config.track))
+    return tracks, recording, ground, config
 
 
 def test_stage_6_thresholds_grow_with_a_long_calibration_vehicle() -> None:
