@@ -40,8 +40,10 @@ ODOMETRY = 'nav_msgs/msg/Odometry'
 RADARSCAN = 'radar_msgs/msg/RadarScan'
 
 #: Radial-velocity field names tried in this order when ``radar.velocity_field`` is empty.
+#: The contract's names, then radar_msgs' ``doppler_velocity`` (a RadarScan turned into a
+#: cloud). Each is also found in another case (CARLA's ROS bridge writes ``Velocity``).
 VELOCITY_FIELD_NAMES = ('velocity', 'radial_velocity', 'radial_speed', 'doppler', 'v_r', 'vr',
-                        'range_rate')
+                        'range_rate', 'doppler_velocity')
 
 # sensor_msgs/msg/PointField datatype constants -> numpy type codes (byte order added later)
 _POINTFIELD_TYPES: dict[int, str] = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4',
@@ -144,15 +146,26 @@ def _fields_listing(table: Mapping[str, tuple[int, int]]) -> str:
     return ', '.join(table) if table else 'none'
 
 
+def _field_named(table: Mapping[str, tuple[int, int]], name: str) -> str | None:
+    """The field called ``name``, else the one field called so in another case (drivers
+    differ: CARLA's ROS bridge writes ``Velocity``), else None."""
+    if name in table:
+        return name
+    folded = [key for key in table if key.lower() == name.lower()]
+    return folded[0] if len(folded) == 1 else None
+
+
 def _choose_velocity_field(table: Mapping[str, tuple[int, int]], velocity_field: str) -> str:
     if velocity_field:
-        if velocity_field not in table:
+        found = _field_named(table, velocity_field)
+        if found is None:
             raise DecodeError(f'PointCloud2 has no velocity field {velocity_field!r} '
                               f'(radar.velocity_field); fields found: {_fields_listing(table)}')
-        return velocity_field
+        return found
     for name in VELOCITY_FIELD_NAMES:
-        if name in table:
-            return name
+        found = _field_named(table, name)
+        if found is not None:
+            return found
     raise DecodeError(f'PointCloud2 has no radial-velocity field (looked for '
                       f'{", ".join(VELOCITY_FIELD_NAMES)}; set radar.velocity_field); fields '
                       f'found: {_fields_listing(table)}')
@@ -202,10 +215,12 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
         # drivers publish empty clouds without fields when nothing was detected
         return RadarFrame(stamp, np.zeros((0, 3)), np.zeros(0))
     table = _field_table(fields)
-    if {'x', 'y', 'z'} <= table.keys():
-        position_names, spherical = ('x', 'y', 'z'), False
-    elif {'range', 'azimuth', 'elevation'} <= table.keys():
-        position_names, spherical = ('range', 'azimuth', 'elevation'), True
+    cartesian = [_field_named(table, name) for name in ('x', 'y', 'z')]
+    polar = [_field_named(table, name) for name in ('range', 'azimuth', 'elevation')]
+    if None not in cartesian:
+        position_names, spherical = tuple(str(n) for n in cartesian), False
+    elif None not in polar:
+        position_names, spherical = tuple(str(n) for n in polar), True
     else:
         raise DecodeError('PointCloud2 has neither x/y/z nor range/azimuth/elevation fields; '
                           f'fields found: {_fields_listing(table)}')

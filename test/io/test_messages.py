@@ -176,6 +176,33 @@ def test_velocity_field_order_and_parameter(ts: Any) -> None:
                                   [-3.0] * 3)
 
 
+def test_field_names_in_another_case(ts: Any) -> None:
+    """CARLA's ROS bridge writes x, y, z, Range, Velocity, AzimuthAngle, ElevationAngle:
+    its velocity is found in another case, named or not; a name two fields share in other
+    cases is not guessed."""
+    fields = [('x', 0, FLOAT32), ('y', 4, FLOAT32), ('z', 8, FLOAT32), ('Range', 12, FLOAT32),
+              ('Velocity', 16, FLOAT32), ('AzimuthAngle', 20, FLOAT32),
+              ('ElevationAngle', 24, FLOAT32)]
+    points = [dict(p, Velocity=p['velocity'], Range=9.0) for p in POINTS]
+    msg = hand_cloud(ts, fields, points, point_step=28)
+    frame = m.decode_pointcloud(msg)
+    np.testing.assert_array_equal(frame.positions_m, XYZ)
+    np.testing.assert_array_equal(frame.radial_velocity_mps, VEL)
+    np.testing.assert_array_equal(m.decode_pointcloud(msg, 'velocity').radial_velocity_mps, VEL)
+    # spherical fields in capitals
+    spherical = [('RANGE', 0, FLOAT32), ('Azimuth', 4, FLOAT32), ('Elevation', 8, FLOAT32),
+                 ('Doppler', 12, FLOAT32)]
+    frame = m.decode_pointcloud(hand_cloud(
+        ts, spherical, [{'RANGE': 10.0, 'Azimuth': 0.0, 'Elevation': 0.0, 'Doppler': -2.0}],
+        point_step=16))
+    np.testing.assert_allclose(frame.positions_m, [[10.0, 0.0, 0.0]], atol=1e-6)
+    np.testing.assert_array_equal(frame.radial_velocity_mps, [-2.0])
+    twice = [('x', 0, FLOAT32), ('y', 4, FLOAT32), ('z', 8, FLOAT32), ('VELOCITY', 12, FLOAT32),
+             ('Velocity', 16, FLOAT32)]
+    with pytest.raises(DecodeError, match="no radial-velocity field"):
+        m.decode_pointcloud(hand_cloud(ts, twice, POINTS, point_step=20))
+
+
 def test_nonfinite_rows_dropped_and_counted(ts: Any) -> None:
     points = [dict(POINTS[0]), dict(POINTS[1], x=math.nan), dict(POINTS[2]),
               dict(POINTS[0], velocity=math.inf), dict(POINTS[1], z=-math.inf)]
