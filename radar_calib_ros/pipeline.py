@@ -476,6 +476,15 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      f'radar\'s position one to one; the reported uncertainty takes at least '
                      f'{_length(h)} horizontal and {_length(v)} vertical for them, whatever '
                      'they declare. Calibrate with an RTK fix.')
+    elif recording.fix_status_unreported:
+        assert recording.fix_sigma_m is not None
+        notes.append('Every fix of the vehicle says NavSatFix status 0 (STATUS_FIX: no RTK, '
+                     f'SBAS or GBAS), yet they declare {_length(recording.fix_sigma_m[0])} '
+                     'horizontal (1 sigma), RTK\'s accuracy: taken as an RTK receiver whose '
+                     'driver leaves the status at its default, and that accuracy joins the '
+                     'uncertainty. If the fixes really are standalone GNSS, the position is '
+                     'off by metres and its uncertainty does not show it; have the driver '
+                     'report RTK as status 2 (STATUS_GBAS_FIX).')
     elif fixes and standalone > 0.5 * fixes:
         h, v = recording.pose_sigma_m
         said = ('they declare no covariance' if recording.fix_sigma_m is None else

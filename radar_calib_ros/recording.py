@@ -38,6 +38,10 @@ _ODOM_OVERHEAD_BYTES = 400
 #: a few metres. Typical receiver specifications, on the side of caution.
 NOMINAL_FIX_SIGMA_M: dict[str, tuple[float, float]] = {
     'rtk': (0.02, 0.03), 'sbas': (0.6, 1.2), 'standalone': (2.0, 4.0)}
+#: Largest median horizontal 1-sigma [m] that fixes which all say NavSatStatus 0 may declare
+#: to be taken as RTK (see ``Recording.fix_status_unreported``): RTK fixed declares 1-3 cm,
+#: float a decimetre or more, a standalone receiver metres.
+RTK_DECLARED_SIGMA_M = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,13 +86,32 @@ class Recording:
         return (max(self.fix_sigma_m[0], nominal[0]), max(self.fix_sigma_m[1], nominal[1]))
 
     @property
+    def _kept_fixes(self) -> int:
+        return (self.counters.get('fixes', 0) - self.counters.get('fixes_no_fix', 0)
+                - self.counters.get('fixes_invalid', 0))
+
+    @property
+    def fix_status_unreported(self) -> bool:
+        """True when every kept fix says NavSatStatus 0 while they declare RTK's accuracy
+        (median horizontal 1-sigma at most ``RTK_DECLARED_SIGMA_M``).
+
+        Status 0 (STATUS_FIX, unaugmented) is also the field's default: drivers that do not
+        map RTK into it (some report RTK fixed, DGPS and standalone all as 0) and simulators
+        leave it there, while the covariance they fill from the receiver's accuracy is
+        information. A drive that mixes statuses uses them, and there a status 0 means the
+        RTK solution was lost, whatever a stale covariance says."""
+        kept = self._kept_fixes
+        return (kept > 0 and self.counters.get('fixes_unaugmented', 0) == kept
+                and self.fix_sigma_m is not None
+                and self.fix_sigma_m[0] <= RTK_DECLARED_SIGMA_M)
+
+    @property
     def fix_grade(self) -> str:
         """'standalone', 'sbas' or 'rtk': what most of the kept fixes' status says ('rtk'
-        without fixes)."""
-        kept = (self.counters.get('fixes', 0) - self.counters.get('fixes_no_fix', 0)
-                - self.counters.get('fixes_invalid', 0))
+        without fixes, or where ``fix_status_unreported``)."""
+        kept = self._kept_fixes
         if kept > 0 and self.counters.get('fixes_unaugmented', 0) > 0.5 * kept:
-            return 'standalone'
+            return 'rtk' if self.fix_status_unreported else 'standalone'
         if kept > 0 and self.counters.get('fixes_sbas', 0) > 0.5 * kept:
             return 'sbas'
         return 'rtk'

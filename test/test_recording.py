@@ -488,9 +488,24 @@ def test_fixes_without_covariance_get_the_sigma_their_status_is_known_for(
     # below RTK a declared centimetre is not believed (a probe's SBAS fixes kept a stale
     # 2 cm covariance: 74 cm off at 24 cm across); above the nominal, the declared counts
     stale = _straight_fixes([status] * 20, [(0.02, 0.03)] * 20).build()
-    assert stale.pose_sigma_m == pytest.approx(sigma)
     honest = _straight_fixes([status] * 20, [(5.0, 9.0)] * 20).build()
     assert honest.pose_sigma_m == pytest.approx((5.0, 9.0))
+    if status == 1:
+        assert stale.pose_sigma_m == pytest.approx(sigma)
+        return
+    # ... but status 0 is also the field's default: where every fix says 0 and declares
+    # RTK's centimetres, the driver does not report RTK in the status, and the declared
+    # accuracy is believed, with a note saying what was assumed
+    assert stale.fix_status_unreported and stale.pose_sigma_m == pytest.approx((0.02, 0.03))
+    notes = [n for n in _data_notes(stale, []) if 'status 0' in n]
+    assert len(notes) == 1 and 'status 2 (STATUS_GBAS_FIX)' in notes[0], notes
+    assert not [n for n in _data_notes(stale, []) if 'standalone GNSS (' in n]
+    # a decimetre and more is not RTK; one fix with another status shows a driver that
+    # uses them, and then the status holds
+    for built in (_straight_fixes([0] * 20, [(0.3, 0.5)] * 20).build(),
+                  _straight_fixes([2] + [0] * 19, [(0.02, 0.03)] * 20).build()):
+        assert not built.fix_status_unreported
+        assert built.pose_sigma_m == pytest.approx(sigma)
 
 
 def test_odometry_alone_is_taken_as_rtk_without_a_note() -> None:
