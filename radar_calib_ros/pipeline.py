@@ -176,15 +176,7 @@ def _sparse_radar_config(recording: Recording, tracked: TrackedTargets,
     settings = _sparse_radar_settings(config)
     if all(config.get(name) == value for name, value in settings.items()):
         return None
-    cl, assoc, hyp = config.cluster, config.associate, config.hypotheses
-    sparse = replace(config,
-                     cluster=replace(cl, min_samples=settings['cluster.min_samples'],
-                                     accumulate_frames=settings['cluster.accumulate_frames']),
-                     associate=replace(assoc,
-                                       min_track_frames=settings['associate.min_track_frames']),
-                     hypotheses=replace(hyp,
-                                        min_track_frames=settings['hypotheses.min_track_frames']))
-    return sparse, median
+    return CalibConfig.from_mapping({**config.to_flat(), **settings}), median
 
 
 def _ground_plane(recording: Recording, tracked: TrackedTargets,
