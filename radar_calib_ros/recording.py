@@ -1027,16 +1027,19 @@ def _speed_scale(t: F64, positions: F64, twist_world: F64, moving: np.ndarray,
 def _finite_difference(t: F64, x: F64, half_span_s: float = 0.2) -> F64:
     """Central difference over about +-half_span_s: RTK noise (~2 cm) differentiated over
     one 20 ms step would be ~1.4 m/s of noise; over 0.4 s it is ~0.07 m/s, while the lag
-    on a 10 m/s, 15 m radius turn stays a few centimetres per second."""
+    on a 10 m/s, 15 m radius turn stays a few centimetres per second.
+
+    Always at least one sample either side (one-sided only at the ends): with samples
+    sparser than the span (fixes at 1-4 Hz) a forward difference is the velocity half an
+    interval later, which the fix-lag check read as fixes 125-500 ms early and 'corrected'
+    (a ninth probe: 0.66-1.1 m off along the boresight)."""
     if t.size < 2:
         return np.zeros_like(x)
+    index = np.arange(t.size)
     lo = np.searchsorted(t, t - half_span_s, side='left')
     hi = np.searchsorted(t, t + half_span_s, side='right') - 1
-    lo = np.minimum(lo, np.arange(t.size))
-    hi = np.maximum(hi, np.arange(t.size))
-    same = hi == lo
-    hi = np.where(same, np.minimum(hi + 1, t.size - 1), hi)
-    lo = np.where(same & (hi == lo), np.maximum(lo - 1, 0), lo)
+    lo = np.minimum(lo, np.maximum(index - 1, 0))
+    hi = np.maximum(hi, np.minimum(index + 1, t.size - 1))
     dt = t[hi] - t[lo]
     with np.errstate(divide='ignore', invalid='ignore'):
         v = np.where(dt > 0, (x[hi] - x[lo]) / dt, 0.0)
