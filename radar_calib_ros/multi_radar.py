@@ -72,7 +72,10 @@ def ambiguous_radar_topics(bag: str | Path, config: CalibConfig) -> list[str]:
 
 
 def radar_frames(bag: str | Path) -> dict[str, str]:
-    """Radar topic -> the frame its result is named by (unique, file-name safe).
+    """Radar topic -> the frame its result is for: the messages' frame_id as TF has it
+    (a frame with '/' keeps it: a carla-ros-bridge's 'ego_vehicle/radar_front' renamed
+    would be a transform nobody looks up), or, where that is empty or shared by several
+    topics, the topic made a name.
 
     Raises
     ------
@@ -85,15 +88,17 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
         raise BagReadError(f'no radar topic (PointCloud2 or RadarScan) in {str(bag)!r}')
     names: dict[str, str] = {}
     for topic, frame in found.items():
-        name = _safe(frame)
-        if not name or name in names.values() or list(found.values()).count(frame) > 1:
+        name = frame.strip().lstrip('/')
+        if (not _safe(name) or _safe(name) in map(_safe, names.values())
+                or list(found.values()).count(frame) > 1):
             name = _safe(topic)
         names[topic] = name
     return names
 
 
 def _safe(name: str) -> str:
-    """A frame or topic name as a file name: '/' and other separators become '_'."""
+    """A frame or topic name as a file name and a parameter name: '/' and other
+    separators become '_'."""
     return ''.join(c if c.isalnum() or c in '-_.' else '_' for c in name.strip('/')).strip('.')
 
 
@@ -175,20 +180,22 @@ def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
 def combined_parameters(calibrations: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     """One ROS 2 parameters file with every radar's transform, ready for ``/tf_static``.
 
-    ``radar_frames`` lists the child frames; ``calibrations.<frame>`` holds each one's
-    transform keys (parent ``world_frame``, child ``radar_frame``, ``translation``,
+    ``radar_frames`` lists the keys under ``calibrations``, each child frame as a
+    parameter name ('/' made '_'); ``calibrations.<key>`` holds that radar's transform
+    keys (parent ``world_frame``, child ``radar_frame`` as TF has it, ``translation``,
     ``quaternion_xyzw``, ...), as in a single result file without the quality figures
     (those stay in the per-radar files).
     """
-    entries = {frame: {k: cal[k] for k in TRANSFORM_KEYS if k in cal}
+    entries = {_safe(frame): {k: cal[k] for k in TRANSFORM_KEYS if k in cal}
                for frame, cal in calibrations.items()}
     return {'/**': {'ros__parameters': {'radar_frames': list(entries),
                                         'calibrations': entries}}}
 
 
 def write_outcomes(out_dir: str | Path, outcomes: Sequence[RadarOutcome]) -> list[Path]:
-    """Write ``<frame>.yaml`` per calibrated radar and the combined ``all_radars.yaml``;
-    returns the files written (the combined one last, only when a radar succeeded)."""
+    """Write ``<frame>.yaml`` per calibrated radar (the frame as a file name, '/' made
+    '_') and the combined ``all_radars.yaml``; returns the files written (the combined one
+    last, only when a radar succeeded)."""
     import yaml
 
     from radar_calib_ros.result import write_atomic, write_result_yaml
@@ -199,7 +206,7 @@ def write_outcomes(out_dir: str | Path, outcomes: Sequence[RadarOutcome]) -> lis
     for outcome in outcomes:
         if outcome.calibration is None:
             continue
-        path = out / f'{outcome.frame_id}.yaml'
+        path = out / f'{_safe(outcome.frame_id)}.yaml'
         write_result_yaml(path, outcome.calibration)
         written.append(path)
         calibrations[outcome.frame_id] = outcome.calibration

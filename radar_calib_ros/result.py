@@ -163,9 +163,15 @@ def write_atomic(path: str | Path, text: str) -> None:
 
 def _one_radar(calibrations: Mapping[str, Any], radar_frame: str | None,
                path: Path) -> Any:
-    """The calibration of ``radar_frame`` in a file of several radars (or its only one)."""
+    """The calibration of ``radar_frame`` in a file of several radars (or its only one):
+    by key, or by the ``radar_frame`` an entry names (the combined parameters file keys a
+    frame with '/' by its parameter-safe name)."""
     if radar_frame in calibrations:
         return calibrations[radar_frame]
+    named = [c for c in calibrations.values() if isinstance(c, Mapping) and radar_frame
+             and str(c.get('radar_frame', '')).lstrip('/') == radar_frame.lstrip('/')]
+    if len(named) == 1:
+        return named[0]
     if len(calibrations) == 1:
         return next(iter(calibrations.values()))
     raise ResultFileError(f'result file {str(path)!r} holds the calibrations of several radars '

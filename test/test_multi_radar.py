@@ -131,12 +131,30 @@ def test_all_radars_unwritable_output_exits_2_before_the_work(
     assert not (tmp_path / 'out').exists()
 
 
-def test_radar_frames_are_unique_file_names(monkeypatch: pytest.MonkeyPatch) -> None:
-    found = {'/a/points': 'radar', '/b/points': 'radar', '/c/points': '', '/d/scan': 'x/y'}
+def test_radar_frames_are_the_messages_frames_made_unique(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """A frame with '/' (carla-ros-bridge: 'ego_vehicle/radar_front') stays as TF has it in
+    the results; only file names and parameter keys make it 'ego_vehicle_radar_front'
+    (a ninth probe's results named a frame no transform lookup would find)."""
+    found = {'/a/points': 'radar', '/b/points': 'radar', '/c/points': '', '/d/scan': 'x/y',
+             '/e/scan': '/site/radar_e'}
     monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
     names = radar_frames('unused')
     assert names == {'/a/points': 'a_points', '/b/points': 'b_points', '/c/points': 'c_points',
-                     '/d/scan': 'x_y'}
+                     '/d/scan': 'x/y', '/e/scan': 'site/radar_e'}
+    from radar_calib_ros.multi_radar import RadarOutcome, write_outcomes
+    cal = {k: 'x/y' if k == 'radar_frame' else k for k in TRANSFORM_KEYS}
+    written = write_outcomes(tmp_path, [RadarOutcome('/d/scan', 'x/y', cal, None, 0)])
+    assert [p.name for p in written] == ['x_y.yaml', 'all_radars.yaml']
+    params = yaml.safe_load(written[1].read_text())['/**']['ros__parameters']
+    assert params['radar_frames'] == ['x_y']
+    assert params['calibrations']['x_y']['radar_frame'] == 'x/y'
+    # evaluate finds it again by the frame it names
+    from radar_calib_ros.result import _one_radar
+    other = dict(params['calibrations']['x_y'], radar_frame='z')
+    several = {'x_y': params['calibrations']['x_y'], 'z': other}
+    assert _one_radar(several, 'x/y', tmp_path)['radar_frame'] == 'x/y'
+    assert _one_radar(several, 'z', tmp_path) is other
 
 
 def test_combined_parameters_hold_only_transforms() -> None:
