@@ -627,7 +627,7 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                        'clustering and tracking defaults, which found no passes that agree: '
                        f'the calibration clustered and tracked with {settings}. Put them in '
                        'the parameters file to make them the default for this radar.')
-        _LOG.warning('%s', sparse_note)
+        _LOG.info('%s', sparse_note)
     stage_extrinsics = {'hypotheses': selection.extrinsics}
     current = selection.extrinsics
     if config.refine.polygon:
