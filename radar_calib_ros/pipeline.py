@@ -424,6 +424,14 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
     velocities), an Odometry twist that did not describe the vehicle's motion (or its
     speed), a radar without elevation, standalone GNSS fixes."""
     notes = list(corrections)
+    apart_s = recording.counters.get('odometry_other_clock_s')
+    if apart_s is not None:
+        notes.append(f'The Odometry\'s header stamps lie {abs(apart_s)} s '
+                     f'{"after" if apart_s > 0 else "before"} the NavSatFix\'s and never '
+                     'overlap them: it runs on a clock of its own (a node without '
+                     'use_sim_time beside a simulator, or not synchronised?). It was left out '
+                     'and the heading taken from the course over ground; stamp the Odometry '
+                     'on the fixes\' clock.')
     if recording.counters.get('odometry_twist_replaced'):
         notes.append('The Odometry twist did not describe the vehicle\'s motion (zero, or in '
                      'another frame): the velocity was taken from the positions. Check the '

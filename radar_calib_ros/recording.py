@@ -163,6 +163,7 @@ class RecordingBuilder:
         self._radar_received: list[int] = []
         self._pose_lag: list[int] = []
         self._pose_received: list[int] = []
+        self._pose_is_fix: list[bool] = []
         # kept current on every append so that the node can check its memory bound per message
         self._nbytes = 0
 
@@ -200,6 +201,7 @@ class RecordingBuilder:
         else:
             self._pose_lag.append(int(received_ns) - int(stamp_ns))
             self._pose_received.append(int(received_ns))
+            self._pose_is_fix.append(role == 'navsat')
 
     def add_fix(self, fix: FixSample) -> bool:
         """Append one NavSatFix; returns False (and counts why) when it is dropped."""
@@ -247,10 +249,13 @@ class RecordingBuilder:
         n_odom = len(self._odoms)
         self._odoms = [o for o in self._odoms if o[0] >= stamp_ns]
         # receipts go with their samples (received - lag is the header stamp)
-        self._radar_lag, self._radar_received = _receipts_from(
-            stamp_ns, self._radar_lag, self._radar_received)
-        self._pose_lag, self._pose_received = _receipts_from(
-            stamp_ns, self._pose_lag, self._pose_received)
+        keep = _receipts_from(stamp_ns, self._radar_lag, self._radar_received)
+        self._radar_lag = [self._radar_lag[i] for i in keep]
+        self._radar_received = [self._radar_received[i] for i in keep]
+        keep = _receipts_from(stamp_ns, self._pose_lag, self._pose_received)
+        self._pose_lag = [self._pose_lag[i] for i in keep]
+        self._pose_received = [self._pose_received[i] for i in keep]
+        self._pose_is_fix = [self._pose_is_fix[i] for i in keep]
         self._nbytes = self._count_nbytes()
         return dropped + n_fix - len(self._fixes) + n_odom - len(self._odoms)
 
@@ -304,6 +309,7 @@ class RecordingBuilder:
         copy._radar_lag, copy._pose_lag = list(self._radar_lag), list(self._pose_lag)
         copy._radar_received = list(self._radar_received)
         copy._pose_received = list(self._pose_received)
+        copy._pose_is_fix = list(self._pose_is_fix)
         copy.counters = Counter(self.counters)
         copy._nbytes = self._nbytes
         return copy
@@ -368,10 +374,18 @@ class RecordingBuilder:
         targets = Targets(positions, velocities, frame_index)
         frame, vehicle = self._build_vehicle()
         counters = dict(self.counters)
+        # The radar is paired with the poses' positions, which come from the fixes where
+        # there are any: their receipts are the ones to judge the radar's stamps by (an
+        # Odometry on a clock of its own, a node without use_sim_time, had the tool advise
+        # a sync.time_offset of 1.76e9 s for a radar on the fixes' clock).
+        pose_lag = np.asarray(self._pose_lag, np.int64)
+        pose_received = np.asarray(self._pose_received, np.int64)
+        from_fixes = np.asarray(self._pose_is_fix, bool)
+        if from_fixes.any():
+            pose_lag, pose_received = pose_lag[from_fixes], pose_received[from_fixes]
         counters.update(_receipt_checks(np.asarray(self._radar_lag, np.int64),
                                         np.asarray(self._radar_received, np.int64),
-                                        np.asarray(self._pose_lag, np.int64),
-                                        np.asarray(self._pose_received, np.int64)))
+                                        pose_lag, pose_received))
         merged = int(order.size - frame_stamps.size)
         if merged:
             counters['radar_messages_merged'] = merged
@@ -454,6 +468,18 @@ class RecordingBuilder:
         if stamps.size < 2:
             raise InsufficientDataError('read', f'only {stamps.size} vehicle pose(s)')
         t = (stamps - stamps[0]) * 1e-9
+        if odoms and self._fixes:
+            odom_stamps = np.array([o.stamp_ns for o in odoms], np.int64)
+            if odom_stamps.max() < stamps[0] or odom_stamps.min() > stamps[-1]:
+                # Not one Odometry stamp within the fixes' span: the two are on different
+                # clocks (a node without use_sim_time stamps wall-clock time beside a sim's),
+                # and interpolated at the fixes' times the Odometry is its first or last
+                # sample throughout. Left out, and said.
+                apart_s = float(np.median(odom_stamps) - np.median(stamps)) * 1e-9
+                self.counters['odometry_other_clock_s'] = int(round(apart_s))
+                _LOG.warning('the Odometry stamps lie %.1f s from the NavSatFix stamps and '
+                             'never overlap them: the Odometry is left out', apart_s)
+                odoms = []
         if odoms:
             o_stamps = np.array([o.stamp_ns for o in odoms], np.int64)
             q = np.array([o.quaternion_xyzw for o in odoms], np.float64)
@@ -544,11 +570,10 @@ def interpolate_poses(vehicle: VehicleTrack, stamps_ns: I64, max_gap_s: float) -
     return PoseSamples(positions, yaw, velocities, yaw_rate, valid)
 
 
-def _receipts_from(stamp_ns: int, lags: list[int], received: list[int]
-                   ) -> tuple[list[int], list[int]]:
-    """The receipts (lag, received) of the messages stamped at or after ``stamp_ns``."""
-    keep = [i for i, (lag, rec) in enumerate(zip(lags, received)) if rec - lag >= stamp_ns]
-    return [lags[i] for i in keep], [received[i] for i in keep]
+def _receipts_from(stamp_ns: int, lags: list[int], received: list[int]) -> list[int]:
+    """Indices of the receipts (lag, received) of the messages stamped at or after
+    ``stamp_ns``."""
+    return [i for i, (lag, rec) in enumerate(zip(lags, received)) if rec - lag >= stamp_ns]
 
 
 #: Offset between the radar's and the poses' header stamps, as one recorder received them,

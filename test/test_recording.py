@@ -629,6 +629,41 @@ def test_receipt_times_show_a_radar_clock_offset_and_a_jump() -> None:
     assert 'radar_stamp_jump_ms' not in calm and abs(calm['radar_stamp_offset_ms']) < 100
 
 
+def test_an_odometry_on_a_clock_of_its_own_is_left_out_and_the_radar_judged_by_the_fixes(
+        ) -> None:
+    """A simulator's radar and fixes on sim time, its Odometry on wall-clock time (a node
+    without use_sim_time): the Odometry never overlaps the fixes and is left out with a note
+    naming the gap, and the radar's stamps, on the fixes' clock, get no advice to shift
+    them (a ninth probe was told to set sync.time_offset to 1.76e9 s)."""
+    from radar_calib_ros.pipeline import _clock_notes, _data_notes
+
+    frame = LocalFrame.at(LAT0, LON0)
+    radius, speed = 30.0, 12.0
+    t = np.arange(0.0, 40.0, 0.05)
+    angle = speed / radius * t
+    lat, lon, alt = frame.local_to_geodetic(np.column_stack(
+        [radius * np.cos(angle) - radius, radius * np.sin(angle), np.zeros_like(t)]))
+    yaw_true = angle + np.pi / 2 + frame.local_convergence_rad(lat, lon)
+    wall = 1_764_000_000 * 10**9
+    own = RecordingBuilder(CalibConfig())
+    for i, ti in enumerate(t):
+        stamp = T0 + int(round(ti * 1e9))
+        received = stamp + 10**9               # the recorder: one clock for every stream
+        own.add_radar_frame(RadarFrame(stamp, np.array([[5.0, 0.0, 0.0]]), np.zeros(1)))
+        own.note_receipt('radar', stamp, received)
+        own.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2, (0.02, 0.03)))
+        own.note_receipt('navsat', stamp, received)
+        own.add_odometry(_odom(stamp + wall, yaw_true[i], speed, speed / radius))
+        own.note_receipt('odom', stamp + wall, received)
+    rec = own.build()
+    assert rec.counters['odometry_other_clock_s'] == pytest.approx(wall / 1e9, abs=30)
+    notes = ' '.join(_data_notes(rec, []))
+    assert 'never overlap them' in notes and 'use_sim_time' in notes
+    assert 'odometry_orientation_replaced' not in rec.counters
+    assert abs(rec.counters.get('radar_stamp_offset_ms', 0)) < 100
+    assert not [n for n in _clock_notes(rec, CalibConfig()) if 'sync.time_offset' in n]
+
+
 def _climbing_builder(grade: float, pitched: bool, sigma_v: float,
                       speed_mps: float = 12.0) -> RecordingBuilder:
     """A vehicle driving north up a straight road of ``grade``; the Odometry twist is
