@@ -528,8 +528,8 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                        'left out; where no other pose covers them, the radar frames there '
                        'wait for a later pass'),
               _dropped(counters.get('fixes_invalid', 0), 'NavSatFix message',
-                       lambda n: 'had no usable position (NaN, or latitude / longitude out of '
-                       'range)', 'left out'),
+                       lambda n: 'had no usable position (NaN, latitude / longitude out of '
+                       'range, or 0 / 0: a receiver without a solution yet)', 'left out'),
               _dropped(counters.get('targets_at_origin', 0), 'radar target',
                        lambda n: 'lay at exactly (0, 0, 0), the radar\'s own antenna,',
                        'dropped (a driver that pads a fixed-size target list with zeros?)'),

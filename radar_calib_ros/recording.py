@@ -213,6 +213,13 @@ class RecordingBuilder:
                 -90.0 <= fix.lat_deg <= 90.0 and -180.0 <= fix.lon_deg <= 180.0):
             self.counters['fixes_invalid'] += 1
             return False
+        if fix.lat_deg == 0.0 and fix.lon_deg == 0.0:
+            # 'null island': a receiver without a solution yet writes zeros, often with
+            # status 0 rather than -1; kept, it chose the UTM zone and skewed the headings
+            # (a ninth probe's first two seconds)
+            self.counters['fixes_invalid'] += 1
+            self.counters['fixes_null_island'] += 1
+            return False
         if fix.status == 0:  # STATUS_FIX: no RTK, SBAS or GBAS augmentation
             self.counters['fixes_unaugmented'] += 1
         elif fix.status == 1:  # STATUS_SBAS_FIX

@@ -248,19 +248,22 @@ def test_invalid_fixes_and_odometry_dropped_and_counted() -> None:
     assert not builder.add_fix(FixSample(T0 + 7 * 10**8, math.nan, LON0, 0.0, 2))
     assert not builder.add_fix(FixSample(T0 + 8 * 10**8, LAT0, LON0, math.inf, 2))
     assert not builder.add_fix(FixSample(T0 + 9 * 10**8, 91.0, LON0, 0.0, 2))
+    # a receiver without a solution yet writes zeros, with status 0 rather than -1
+    assert not builder.add_fix(FixSample(T0 + 10**9, 0.0, 0.0, 0.0, 0))
     assert builder.add_odometry(_odom(T0, 0.3))
     assert not builder.add_odometry(_odom(T0 + 1, math.nan))
     bad_q = OdomSample(T0 + 2, (0, 0, 0), (0.0, 0.0, 0.0, 0.0), (0, 0, 0), 0.0)
     assert not builder.add_odometry(bad_q)
     assert builder.add_odometry(_odom(T0 + 10**9, 0.3))
     rec = builder.build()
-    assert rec.counters['fixes'] == 9 and rec.counters['fixes_no_fix'] == 2
-    assert rec.counters['fixes_invalid'] == 3
+    assert rec.counters['fixes'] == 10 and rec.counters['fixes_no_fix'] == 2
+    assert rec.counters['fixes_invalid'] == 4 and rec.counters['fixes_null_island'] == 1
     assert rec.counters['odometry'] == 4 and rec.counters['odometry_invalid'] == 2
     from radar_calib_ros.pipeline import _data_notes
     notes = _data_notes(rec, [])
     assert any(n.startswith('2 Odometry messages (50 %) had no usable pose') for n in notes)
-    assert any(n.startswith('3 NavSatFix messages had no usable position') for n in notes)
+    assert any(n.startswith('4 NavSatFix messages had no usable position') and '0 / 0' in n
+               for n in notes)
     # the standalone and the SBAS fix (status 0, 1) amid RTK ones are kept as received but
     # left out of the vehicle track
     # (test_rtk_lost_for_stretches_is_named_with_their_count_and_length)
