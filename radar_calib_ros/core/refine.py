@@ -1631,9 +1631,15 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
     # advised there would give nothing (seen on an independent recording: "about 11 m").
     nearest = float(np.percentile(np.hypot(*(g['pos'][:, :2] - est.translation_m[:2]).T), 2))
     candidates = _drive_candidates(recording, poses, est, g, data, coverage, bore, nearest)
-    advice = uncertainty.drive_advice(sig['sigma_along_boresight_m'],
-                                      config.quality.max_boresight_sigma_m, coverage,
-                                      candidates, bore, nearest)
+    # The views decide how well the drives pin the position along the boresight; the
+    # vehicle's own position error (what its fixes are worth, added to the covariance) no
+    # drive takes away, and the data notes speak of it: drives are advised for the views'
+    # part alone (a simulator's fixes taken as standalone GNSS had the tool blame 2 m on the
+    # bearings and ask for more drives).
+    fixes_sigma = recording.pose_sigma_m[0]
+    views_along = math.sqrt(max(sig['sigma_along_boresight_m'] ** 2 - fixes_sigma ** 2, 0.0))
+    advice = uncertainty.drive_advice(views_along, config.quality.max_boresight_sigma_m,
+                                      coverage, candidates, bore, nearest, fixes_sigma)
     passes = []
     i_t = slice(3, 6)
     t_target = data.times.t_s

@@ -353,7 +353,7 @@ class DriveCandidate:
 
 def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverage,
                  candidates: list[DriveCandidate], boresight_rad: float,
-                 nearest_m: float = 0.0) -> list[str]:
+                 nearest_m: float = 0.0, fixes_sigma_m: float = 0.0) -> list[str]:
     """Plain sentences naming the drive that would shrink a large along-boresight sigma.
 
     Parameters
@@ -364,6 +364,8 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     candidates : drives through the view, best first (see ``core.refine``)
     boresight_rad : ENU direction of the boresight's ground projection
     nearest_m : the nearest the vehicle was seen (the vertical view's edge) [m]
+    fixes_sigma_m : the vehicle's own position error, which ``sigma_along_m`` leaves out
+        and the reported uncertainty adds; named where it is above the threshold too [m]
     """
     if not sigma_along_m > threshold_m:
         return []
@@ -375,9 +377,11 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     spread = coverage.bearing_spread_deg[seen]
     finite = spread[np.isfinite(spread)]
     median_spread = float(np.median(finite)) if finite.size else 0.0
+    besides = (f', besides the {fixes_sigma_m:.1f} m of the vehicle\'s fixes'
+               if fixes_sigma_m > threshold_m else '')
     sentences = [
         f'The position along the boresight is uncertain by {100 * sigma_along_m:.0f} cm '
-        f'(1 sigma, more than {100 * threshold_m:.0f} cm): each side of the vehicle '
+        f'(1 sigma, more than {100 * threshold_m:.0f} cm{besides}): each side of the vehicle '
         f'({_join(sides) or "none"}) was seen from bearings spread by only about '
         f'{median_spread:.0f} deg, so the depth of its reflections trades off against the '
         'radar\'s distance.']
