@@ -212,6 +212,8 @@ class RecordingBuilder:
         if not all(math.isfinite(v) for v in (fix.lat_deg, fix.lon_deg, fix.alt_m)) or not (
                 -90.0 <= fix.lat_deg <= 90.0 and -180.0 <= fix.lon_deg <= 180.0):
             self.counters['fixes_invalid'] += 1
+            if not math.isfinite(fix.alt_m) and math.isfinite(fix.lat_deg + fix.lon_deg):
+                self.counters['fixes_altitude_nan'] += 1
             return False
         if fix.lat_deg == 0.0 and fix.lon_deg == 0.0:
             # 'null island': a receiver without a solution yet writes zeros, often with
@@ -469,8 +471,12 @@ class RecordingBuilder:
             positions = frame.utm_to_local(utm)
             lat, lon, _ = frame.utm_to_geodetic(utm)
         else:
-            reason = ('no valid NavSatFix' + (' (Odometry positions are used only with '
-                                              'vehicle.odom_is_utm)' if odoms else ''))
+            no_altitude = self.counters.get('fixes_altitude_nan', 0)
+            reason = ('no valid NavSatFix' + (
+                f' ({no_altitude} of {self.counters["fixes"]} have a latitude and longitude '
+                'but no altitude (NaN): the radar\'s height needs the vehicle\'s)'
+                if no_altitude else '') + (' (Odometry positions are used only with '
+                                           'vehicle.odom_is_utm)' if odoms else ''))
             raise InsufficientDataError('read', f'no vehicle pose: {reason}')
         if stamps.size < 2:
             raise InsufficientDataError('read', f'only {stamps.size} vehicle pose(s)')

@@ -247,6 +247,7 @@ def test_invalid_fixes_and_odometry_dropped_and_counted() -> None:
     assert kept == [True, False, True, True, True, False]
     assert not builder.add_fix(FixSample(T0 + 7 * 10**8, math.nan, LON0, 0.0, 2))
     assert not builder.add_fix(FixSample(T0 + 8 * 10**8, LAT0, LON0, math.inf, 2))
+    assert builder.counters['fixes_altitude_nan'] == 1
     assert not builder.add_fix(FixSample(T0 + 9 * 10**8, 91.0, LON0, 0.0, 2))
     # a receiver without a solution yet writes zeros, with status 0 rather than -1
     assert not builder.add_fix(FixSample(T0 + 10**9, 0.0, 0.0, 0.0, 0))
@@ -857,3 +858,15 @@ def test_targets_at_the_radar_origin_are_padding_and_dropped() -> None:
     np.testing.assert_array_equal(rec.targets.positions_m[frame], real)
     np.testing.assert_array_equal(rec.targets.radial_velocity_mps[frame], [2.0, -1.0])
     assert any('6 radar targets lay at exactly (0, 0, 0)' in n for n in _data_notes(rec, []))
+
+
+def test_fixes_without_an_altitude_are_named_when_nothing_else_gives_a_pose() -> None:
+    """Every fix with latitude and longitude but a NaN altitude: no pose, and the failure
+    says why instead of 'no valid NavSatFix' alone."""
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for k in range(5):
+        builder.add_fix(FixSample(T0 + k * 10**8, LAT0, LON0 + 1e-5 * k, math.nan, 2))
+    with pytest.raises(InsufficientDataError, match=r'5 of 5 have a latitude and longitude '
+                       r'but no altitude \(NaN\)'):
+        builder.build()
