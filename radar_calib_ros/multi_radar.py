@@ -65,7 +65,7 @@ def ambiguous_radar_topics(bag: str | Path, config: CalibConfig) -> list[str]:
     from radar_calib_ros.io.bag import radar_topics
     if 'radar_topic' in config.explicit:
         return []
-    topics = radar_topics(bag)
+    topics = radar_topics(bag, config.radar.velocity_field)
     if len(topics) > 1 and not any(_same_topic(t, config.radar_topic) for t in topics):
         return topics
     return []

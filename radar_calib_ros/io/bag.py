@@ -176,20 +176,50 @@ def _reason(err: BaseException) -> str:
     return text if len(text) <= 300 else text[:297] + '...'
 
 
-def radar_topics(path: str | Path) -> list[str]:
-    """Every radar topic (PointCloud2 or radar_msgs RadarScan) of a bag, sorted.
+def radar_topics(path: str | Path, velocity_field: str = '') -> list[str]:
+    """Every radar topic (PointCloud2 or radar_msgs RadarScan) of a bag, sorted; of
+    several, not the PointCloud2 topics without a radial velocity (``_not_radars``).
 
     Raises
     ------
     BagReadError
         The bag cannot be opened.
     """
-    with _open_reader(Path(path)) as reader:
-        return sorted({c.topic for c in reader.connections if c.msgtype in RADAR_TYPES})
+    path = Path(path)
+    with _open_reader(path) as reader:
+        topics = {c.topic for c in reader.connections if c.msgtype in RADAR_TYPES}
+        return sorted(topics - _not_radars(reader, path, velocity_field))
+
+
+#: Messages of a PointCloud2 topic looked at for its fields (empty scans carry none).
+_FIELD_PEEK_MESSAGES = 20
+
+
+def _not_radars(reader: AnyReader, path: Path, velocity_field: str) -> set[str]:
+    """Where a bag has several PointCloud2 / RadarScan topics: the PointCloud2 topics whose
+    first cloud with fields has no radial-velocity field (a lidar beside the radar, as a
+    simulator records it), which are not radars. Empty with one such topic, whose decoding
+    then names what is missing."""
+    candidates = [c for c in reader.connections if c.msgtype in RADAR_TYPES]
+    if len({c.topic for c in candidates}) < 2:
+        return set()
+    out: set[str] = set()
+    for connection in candidates:
+        if connection.msgtype != msgs.POINTCLOUD2:
+            continue
+        for k, (_, _, msg) in enumerate(_messages(reader, [connection], path)):
+            if list(msg.fields):
+                if msgs.lacks_velocity_field(msg, velocity_field):
+                    out.add(connection.topic)
+                break
+            if k + 1 >= _FIELD_PEEK_MESSAGES:
+                break
+    return out
 
 
 def radar_frame_ids(path: str | Path) -> dict[str, str]:
-    """The header ``frame_id`` of the first message of every radar topic of a bag.
+    """The header ``frame_id`` of the first message of every radar topic of a bag (of
+    several, not the PointCloud2 topics without a radial velocity: ``_not_radars``).
 
     A topic without messages, or whose first message has an empty frame id, maps to ''.
 
@@ -201,8 +231,10 @@ def radar_frame_ids(path: str | Path) -> dict[str, str]:
     path = Path(path)
     frames: dict[str, str] = {}
     with _open_reader(path) as reader:
+        skip = _not_radars(reader, path, '')
         for connection in reader.connections:
-            if connection.msgtype not in RADAR_TYPES or connection.topic in frames:
+            if (connection.msgtype not in RADAR_TYPES or connection.topic in frames
+                    or connection.topic in skip):
                 continue
             frames[connection.topic] = ''
             for _, _, msg in _messages(reader, [connection], path):
@@ -264,6 +296,9 @@ def read_recording(path: str | Path, config: CalibConfig, *,
     builder = RecordingBuilder(config)
     with _open_reader(path) as reader:
         topics = {c.topic: c.msgtype for c in reader.connections}
+        if 'radar_topic' not in config.explicit:
+            for topic in _not_radars(reader, path, config.radar.velocity_field):
+                del topics[topic]
         chosen = select_topics(topics, config)
         roles = {topic: role for role, topic in chosen.items() if topic is not None}
         connections = [c for c in reader.connections if c.topic in roles]

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 __all__ = [
     'POINTCLOUD2', 'NAVSATFIX', 'ODOMETRY', 'RADARSCAN', 'VELOCITY_FIELD_NAMES',
     'get_typestore', 'stamp_ns', 'frame_id_mismatch', 'decode_pointcloud', 'decode_radarscan',
-    'decode_navsatfix',
+    'decode_navsatfix', 'lacks_velocity_field',
     'decode_odometry', 'encode_pointcloud', 'encode_navsatfix', 'encode_odometry',
     'msg_schemas_dir',
 ]
@@ -153,6 +153,17 @@ def _field_named(table: Mapping[str, tuple[int, int]], name: str) -> str | None:
         return name
     folded = [key for key in table if key.lower() == name.lower()]
     return folded[0] if len(folded) == 1 else None
+
+
+def lacks_velocity_field(msg: Any, velocity_field: str = '') -> bool:
+    """True for a PointCloud2 with fields but no radial-velocity field (a lidar's x, y, z,
+    intensity): not a radar. A cloud without fields (an empty scan) says nothing: False."""
+    table = _field_table(list(msg.fields))
+    if not table:
+        return False
+    if velocity_field:
+        return _field_named(table, velocity_field) is None
+    return all(_field_named(table, name) is None for name in VELOCITY_FIELD_NAMES)
 
 
 def _choose_velocity_field(table: Mapping[str, tuple[int, int]], velocity_field: str) -> str:

@@ -203,6 +203,34 @@ def test_radar_topics_and_explicit_radar_topic(tmp_path: Path, ts: Any) -> None:
                                   np.concatenate([f[1] for f in s1['frames']]))
 
 
+def test_a_lidar_beside_the_radar_is_not_a_radar_topic(tmp_path: Path, ts: Any) -> None:
+    """A simulator records its lidar's PointCloud2 (x, y, z, intensity) beside the radar's:
+    without a radial-velocity field it is no radar, so the radar is picked by type alone
+    (a ninth probe's CARLA bag asked for radar_topic or --all-radars); named explicitly,
+    it is still what the user asked for."""
+    from radar_calib_ros.io.bag import radar_frame_ids
+    s = scene(seed=5)
+
+    def with_lidar() -> Iterator[Item]:
+        yield from bag_messages(ts, s, radar_topic='/radar/front')
+        yield ('/lidar/points', m.POINTCLOUD2, T0 - 10**6,
+               m.encode_pointcloud(ts, T0 - 10**6, 'lidar', np.zeros((0, 3)), np.zeros(0),
+                                   velocity_field='intensity'))
+        for stamp, positions, velocity in s['frames']:
+            yield ('/lidar/points', m.POINTCLOUD2, stamp,
+                   m.encode_pointcloud(ts, stamp, 'lidar', positions, np.abs(velocity),
+                                       velocity_field='intensity'))
+
+    write_bag(tmp_path / 'lidar', with_lidar(), typestore=ts)
+    assert radar_topics(tmp_path / 'lidar') == ['/radar/front']
+    assert radar_frame_ids(tmp_path / 'lidar') == {'/radar/front': 'radar'}
+    recording = read_recording(tmp_path / 'lidar', CalibConfig())
+    np.testing.assert_array_equal(recording.targets.positions_m,
+                                  np.concatenate([f[1] for f in s['frames']]))
+    with pytest.raises(DecodeError, match='no radial-velocity field'):
+        read_recording(tmp_path / 'lidar', CalibConfig(), radar_topic='/lidar/points')
+
+
 def test_path_to_metadata_yaml_reads_the_bag(good_bags: dict[str, Path]) -> None:
     rec = read_recording(good_bags['sqlite3'] / 'metadata.yaml', CalibConfig())
     assert rec.counters['radar_frames'] == len(scene()['frames'])
