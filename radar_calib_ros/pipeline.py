@@ -515,14 +515,12 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      'vehicle turned or changed speed): each fix was taken at its stamp minus '
                      'that. Check how the GNSS driver stamps its fixes (at the epoch, not at '
                      'output).')
-    malformed = recording.counters.get('radar_messages_malformed', 0)
-    if malformed:
-        notes.append(f'{malformed} radar message{"s" if malformed != 1 else ""} could not be '
-                     'decoded (truncated or malformed PointCloud2) and '
-                     f'{"were" if malformed != 1 else "was"} skipped; check the driver.')
     counters = recording.counters
     odometry = max(counters.get('odometry', 0), 1)
-    notes += [_dropped(counters.get('odometry_invalid', 0), 'Odometry message',
+    notes += [_dropped(counters.get('radar_messages_malformed', 0), 'radar message',
+                       lambda n: 'could not be decoded (truncated or malformed PointCloud2)',
+                       'skipped; check the driver'),
+              _dropped(counters.get('odometry_invalid', 0), 'Odometry message',
                        lambda n: f'({100 * n / odometry:.0f} %) had no usable pose (a NaN, or a '
                        'quaternion far from unit length: an INS still aligning writes zeros)',
                        'left out; where no other pose covers them, the radar frames there '

@@ -481,20 +481,19 @@ class RecordingBuilder:
         if stamps.size < 2:
             raise InsufficientDataError('read', f'only {stamps.size} vehicle pose(s)')
         t = (stamps - stamps[0]) * 1e-9
+        o_stamps = np.array([o.stamp_ns for o in odoms], np.int64)
         if odoms and self._fixes:
-            odom_stamps = np.array([o.stamp_ns for o in odoms], np.int64)
-            if odom_stamps.max() < stamps[0] or odom_stamps.min() > stamps[-1]:
+            if o_stamps.max() < stamps[0] or o_stamps.min() > stamps[-1]:
                 # Not one Odometry stamp within the fixes' span: the two are on different
                 # clocks (a node without use_sim_time stamps wall-clock time beside a sim's),
                 # and interpolated at the fixes' times the Odometry is its first or last
                 # sample throughout. Left out, and said.
-                apart_s = float(np.median(odom_stamps) - np.median(stamps)) * 1e-9
+                apart_s = float(np.median(o_stamps) - np.median(stamps)) * 1e-9
                 self.counters['odometry_other_clock_s'] = int(round(apart_s))
                 _LOG.warning('the Odometry stamps lie %.1f s from the NavSatFix stamps and '
                              'never overlap them: the Odometry is left out', apart_s)
                 odoms = []
         if odoms:
-            o_stamps = np.array([o.stamp_ns for o in odoms], np.int64)
             q = np.array([o.quaternion_xyzw for o in odoms], np.float64)
             yaw_true = np.arctan2(2.0 * (q[:, 3] * q[:, 2] + q[:, 0] * q[:, 1]),
                                   1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2))
