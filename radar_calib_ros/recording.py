@@ -530,15 +530,26 @@ class RecordingBuilder:
             c, s = np.cos(yaw), np.sin(yaw)
             yaw_rate = np.interp(t, to, rate)
             twist_world = np.column_stack([c * vx - s * vy, s * vx + c * vy])
+            twist_turn = 0.0
             if offset:
                 # an INS turned on its mount gives its twist in its own frame too: then the
                 # heading as given turns it into the world, not the corrected one
                 c2, s2 = np.cos(yaw + offset), np.sin(yaw + offset)
                 own_frame = np.column_stack([c2 * vx - s2 * vy, s2 * vx + c2 * vy])
                 if _twist_mismatch(own_frame, coarse) < _twist_mismatch(twist_world, coarse):
-                    twist_world = own_frame
+                    twist_world, twist_turn = own_frame, offset
             velocities = _checked_twist(t, positions, measured, coarse, twist_world,
                                         np.column_stack([vx, vy]), self.counters, yaw_rate)
+            if _slow_fixes(t, to):
+                dense = _odometry_between_fixes(
+                    t, positions, yaw, velocities, yaw_rate, to,
+                    _odometry_heading(frame, yaw_true, np.interp(to, t, lat),
+                                      np.interp(to, t, lon), offset, self.counters, t, to,
+                                      positions, v_level),
+                    v_level, rate, twist_turn, self.counters)
+                if dense is not None:
+                    t_dense, positions, yaw, velocities, yaw_rate = dense
+                    stamps = stamps[0] + np.round(t_dense * 1e9).astype(np.int64)
         else:
             velocities = _position_velocities(t, positions)
             yaw, yaw_rate = _course_over_ground(t, velocities, cfg.vehicle.min_heading_speed,
@@ -546,6 +557,152 @@ class RecordingBuilder:
         vehicle = VehicleTrack(stamps, positions, np.asarray(yaw, float), velocities,
                                np.asarray(yaw_rate, float))
         return frame, vehicle
+
+
+#: Fixes slower than this (median interval) [s] are bridged by the Odometry's motion between
+#: them; intervals longer than ``_BRIDGED_INTERVAL_S`` are not (an outage stays a gap).
+_SLOW_FIX_INTERVAL_S = 0.3
+_BRIDGED_INTERVAL_S = 2.5
+
+
+def _slow_fixes(t: F64, to: F64) -> bool:
+    """True when the fixes come slower than ``_SLOW_FIX_INTERVAL_S`` and the Odometry at
+    least twice as fast within their span."""
+    if t.size < 3:
+        return False
+    interval = float(np.median(np.diff(t)))
+    inside = to[(to > t[0]) & (to < t[-1])]
+    return (interval >= _SLOW_FIX_INTERVAL_S and inside.size >= 2 * t.size
+            and float(np.median(np.diff(inside))) <= 0.5 * interval)
+
+
+#: Largest median turn of a replaced Odometry heading from the course over ground, once its
+#: constant offset is taken off, for it still to give the heading between fixes [rad].
+_TURNED_MAP_SPREAD_RAD = math.radians(3.0)
+
+
+def _odometry_heading(frame: LocalFrame, yaw_true: F64, lat: F64, lon: F64, offset: float,
+                      counters: Counter[str], t: F64, to: F64, positions: F64, v_level: F64
+                      ) -> F64 | None:
+    """The Odometry's heading at its own stamps as ``_checked_orientation`` read it (local
+    grid, its offset taken off); where that replaced it by the course over ground, the
+    Odometry's heading turned by the constant turn of its map frame when the fixes'
+    ``positions`` (at ``t``) show one, else None.
+
+    Why the second: a map frame turned against east (an HD map's, or a simulator's) is
+    further off than ``_checked_orientation`` takes for an offset, but between fixes a
+    second apart its turns are all there is (a probe's Odometry in a map frame turned 37 deg,
+    beside 1 Hz fixes)."""
+    if counters.get('odometry_orientation_compass'):
+        return frame.true_yaw_to_local(np.pi / 2.0 - yaw_true, lat, lon)
+    local = frame.true_yaw_to_local(yaw_true, lat, lon)
+    if not counters.get('odometry_orientation_replaced'):
+        return local - offset
+    # the turn of the map frame: between consecutive fixes, the direction of their chord
+    # against that of the twist integrated with the heading as given (exact for any path;
+    # the course over ground at slow fixes is not the heading where the curvature changes)
+    c, s = np.cos(local), np.sin(local)
+    twist = np.column_stack([c * v_level[:, 0] - s * v_level[:, 1],
+                             s * v_level[:, 0] + c * v_level[:, 1]])
+    times = np.union1d(t, to[(to > t[0]) & (to < t[-1])])
+    v = np.column_stack([np.interp(times, to, twist[:, i]) for i in range(2)])
+    travelled = np.vstack([np.zeros((1, 2)), np.cumsum(
+        0.5 * (v[1:] + v[:-1]) * np.diff(times)[:, None], axis=0)])
+    reckoned = np.diff(travelled[np.searchsorted(times, t)], axis=0)
+    chord = np.diff(positions[:, :2], axis=0)
+    used = ((np.diff(t) <= _BRIDGED_INTERVAL_S)
+            & (np.hypot(*chord.T) > _TWIST_CHECK_SPEED_MPS * np.diff(t)))
+    if int(used.sum()) < _ORIENTATION_SAMPLES:
+        return None
+    turn = wrap_angle(np.arctan2(reckoned[used, 1], reckoned[used, 0])
+                      - np.arctan2(chord[used, 1], chord[used, 0]))
+    offset = float(np.angle(np.mean(np.exp(1j * turn))))
+    if float(np.median(np.abs(wrap_angle(turn - offset)))) > _TURNED_MAP_SPREAD_RAD:
+        return None
+    return local - offset
+
+
+def _odometry_between_fixes(t: F64, positions: F64, yaw: F64, velocities: F64, yaw_rate: F64,
+                            to: F64, heading: F64 | None, v_level: F64, rate: F64,
+                            twist_turn: float, counters: Counter[str]
+                            ) -> tuple[F64, F64, F64, F64, F64] | None:
+    """(t, positions, yaw, velocities, yaw_rate) with the Odometry's samples added between
+    fixes no more than ``_BRIDGED_INTERVAL_S`` apart, or None where its heading or twist
+    was found unusable.
+
+    Why: GNSS receivers give 1-2 Hz by default beside a 50-100 Hz INS. Linear between 1 Hz
+    fixes, a car turning at 0.3 rad/s and 10 m/s is off its arc by up to 37 cm, and a gap
+    of a second is more than ``sync.max_pose_gap`` allows (a probe's 1 Hz fixes were
+    refused, and with the gap raised gave 19 cm against 11 cm at 10 Hz). Between two fixes
+    the path is the Odometry's twist integrated from the first, its misclosure at the
+    second spread linearly over the interval: the fixes stay exact, and a twist off by a
+    scale, a grade or a small turn errs only by how much that error varies within one
+    interval. Height is interpolated between the fixes (the twist's is not trusted).
+    """
+    if heading is None or counters.get('odometry_twist_replaced'):
+        return None
+    if counters.get('odometry_twist_in_parent_frame'):
+        twist = v_level[:, :2]
+    else:
+        c, s = np.cos(heading + twist_turn), np.sin(heading + twist_turn)
+        twist = np.column_stack([c * v_level[:, 0] - s * v_level[:, 1],
+                                 s * v_level[:, 0] + c * v_level[:, 1]])
+    interval = np.diff(t)
+    k = np.searchsorted(t, to, side='right') - 1
+    inside = (k >= 0) & (k < t.size - 1)
+    inside[inside] &= (to[inside] > t[k[inside]]) & (interval[k[inside]] <= _BRIDGED_INTERVAL_S)
+    if not inside.any():
+        return None
+    added = np.flatnonzero(inside)
+    times = np.concatenate([t, to[added]])
+    order = np.argsort(times, kind='stable')
+    times = times[order]
+    is_fix = order < t.size
+    # twist on the merged timeline, integrated by trapezoids
+    v = np.column_stack([np.interp(times, to, twist[:, i]) for i in range(2)])
+    travelled = np.vstack([np.zeros((1, 2)), np.cumsum(
+        0.5 * (v[1:] + v[:-1]) * np.diff(times)[:, None], axis=0)])
+    misclosure = positions[:, :2] - travelled[is_fix]
+    seg = np.clip(np.searchsorted(t, times, side='right') - 1, 0, t.size - 2)
+    share = (times - t[seg]) / interval[seg]
+    slope = (misclosure[seg + 1] - misclosure[seg]) / interval[seg][:, None]
+    xy = travelled + misclosure[seg] + share[:, None] * (misclosure[seg + 1] - misclosure[seg])
+    z = positions[seg, 2] + share * (positions[seg + 1, 2] - positions[seg, 2])
+    vz = (positions[seg + 1, 2] - positions[seg, 2]) / interval[seg]
+    out_positions = np.column_stack([xy, z])
+    out_velocities = np.column_stack([v + slope, vz])
+    out_yaw = np.empty(times.size)
+    out_rate = np.empty(times.size)
+    odom = ~is_fix
+    out_yaw[odom] = heading[added]
+    out_rate[odom] = rate[added]
+    # at a fix the Odometry's heading too (a course over ground it replaced errs most at
+    # the ends of the drive); one with no bridged interval on either side keeps what the
+    # fixes alone gave
+    bridged = np.zeros(t.size + 1, bool)
+    bridged[1:-1] = interval <= _BRIDGED_INTERVAL_S
+    alone = ~(bridged[:-1] | bridged[1:])
+    fix_rows = np.flatnonzero(is_fix)
+    out_yaw[is_fix] = np.where(alone, yaw, _interp_angle(t, to, heading))
+    out_rate[is_fix] = np.where(alone, yaw_rate, np.interp(t, to, rate))
+    out_positions[fix_rows] = positions
+    # at a fix the misclosure's slope of a bridged interval beside it (an outage's one
+    # trapezoid over seconds is no velocity)
+    fix_seg = np.where(bridged[1:], np.arange(t.size), np.arange(t.size) - 1)[~alone]
+    out_velocities[fix_rows[~alone], :2] = (
+        v[fix_rows[~alone]] + (misclosure[fix_seg + 1] - misclosure[fix_seg])
+        / interval[fix_seg][:, None])
+    out_velocities[fix_rows[~alone], 2] = ((positions[fix_seg + 1, 2] - positions[fix_seg, 2])
+                                           / interval[fix_seg])
+    out_velocities[fix_rows[alone]] = velocities[alone]
+    # sample stamps equal to a fix's would be duplicates once rounded to nanoseconds
+    keep = np.ones(times.size, bool)
+    keep[1:] = np.diff(np.round(times * 1e9)) > 0
+    counters['poses_bridged_by_odometry'] = int(added.size)
+    _LOG.info('the fixes come every %.2f s: the Odometry\'s %d samples between them give the '
+              'path there', float(np.median(interval)), added.size)
+    return (times[keep], out_positions[keep], out_yaw[keep], out_velocities[keep],
+            out_rate[keep])
 
 
 def _odom_sample(values: tuple[float, ...]) -> OdomSample:

@@ -870,3 +870,52 @@ def test_fixes_without_an_altitude_are_named_when_nothing_else_gives_a_pose() ->
     with pytest.raises(InsufficientDataError, match=r'5 of 5 have a latitude and longitude '
                        r'but no altitude \(NaN\)'):
         builder.build()
+
+
+@pytest.mark.parametrize('map_turn_deg', [0.0, 37.0])
+def test_odometry_fills_the_path_between_slow_fixes_but_not_an_outage(
+        map_turn_deg: float) -> None:
+    """Fixes at 1 Hz beside a 50 Hz Odometry (twist 3 % fast, orientation in a map frame
+    turned by map_turn_deg) on a drive that turns and brakes, with a 4 s outage of the
+    fixes: between fixes a second apart the poses follow the true arc to centimetres (the
+    fixes alone, linearly, are decimetres off) and pair with radar frames at the default
+    sync.max_pose_gap; inside the outage they do not."""
+    from scipy.integrate import cumulative_trapezoid
+
+    frame = LocalFrame.at(LAT0, LON0)
+    t = np.arange(0.0, 60.0, 0.02)
+    speed = 11.0 + 3.0 * np.sin(2 * np.pi * t / 12.0)
+    yaw = 0.9 * np.sin(2 * np.pi * t / 15.0)
+    rate = np.gradient(yaw, t)
+    xy = cumulative_trapezoid(np.column_stack([speed * np.cos(yaw), speed * np.sin(yaw)]),
+                              t, axis=0, initial=0.0)
+    lat, lon, alt = frame.local_to_geodetic(np.column_stack([xy, np.zeros_like(t)]))
+    yaw_true = yaw + frame.local_convergence_rad(lat, lon) + math.radians(map_turn_deg)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    outage = (t > 30.5) & (t < 34.5)
+    for i, ti in enumerate(t):
+        stamp = T0 + int(round(ti * 1e9))
+        if i % 50 == 0 and not outage[i]:
+            builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2, (0.02, 0.03)))
+        builder.add_odometry(_odom(stamp, yaw_true[i], 1.03 * speed[i], rate[i]))
+    rec = builder.build()
+    assert rec.counters['poses_bridged_by_odometry'] > 2000
+    radar_t = np.arange(1.0, 59.0, 1.0 / 15.0)
+    poses = interpolate_poses(rec.vehicle, T0 + np.round(radar_t * 1e9).astype(np.int64),
+                              CalibConfig().sync.max_pose_gap)
+    in_outage = (radar_t > 30.0) & (radar_t < 35.0)
+    assert poses.valid[~in_outage].all() and not poses.valid[in_outage].any()
+    truth = np.column_stack([np.interp(radar_t, t, xy[:, i]) for i in range(2)])
+    err = np.hypot(*(poses.positions_m[~in_outage, :2] - truth[~in_outage]).T)
+    assert err.max() < 0.03, err.max()
+    fixes_t = t[::50][~outage[::50]]
+    linear = np.column_stack([np.interp(radar_t, fixes_t, xy[::50][~outage[::50], i])
+                              for i in range(2)])
+    assert np.hypot(*(linear - truth)[~in_outage].T).max() > 0.1
+    heading_err = np.abs(_wrap(poses.yaw_rad - np.interp(radar_t, t, yaw)))[~in_outage]
+    assert np.degrees(heading_err).max() < 0.5
+    true_v = np.column_stack([np.interp(radar_t, t, speed * np.cos(yaw)),
+                              np.interp(radar_t, t, speed * np.sin(yaw))])
+    v_err = np.linalg.norm(poses.velocities_mps[~in_outage, :2] - true_v[~in_outage], axis=1)
+    assert np.median(v_err) < 0.05 and v_err.max() < 0.3, (np.median(v_err), v_err.max())
