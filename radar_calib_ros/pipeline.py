@@ -432,6 +432,13 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      'use_sim_time beside a simulator, or not synchronised?). It was left out '
                      'and the heading taken from the course over ground; stamp the Odometry '
                      'on the fixes\' clock.')
+    unset = recording.counters.get('radar_stamps_unset', 0)
+    if unset:
+        total = unset + recording.counters.get('radar_frames', 0)
+        notes.append(f'{unset} of the radar\'s {total} messages carry no header stamp (0) and '
+                     'were left out: the calibration times messages by their header stamps, '
+                     'never by their receipt. Have the driver stamp each scan with its '
+                     'measurement time.')
     if recording.counters.get('odometry_twist_replaced'):
         notes.append('The Odometry twist did not describe the vehicle\'s motion (zero, or in '
                      'another frame): the velocity was taken from the positions. Check the '

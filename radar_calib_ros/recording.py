@@ -363,7 +363,12 @@ class RecordingBuilder:
             ``vehicle.odom_is_utm`` without ``world.epsg``.
         """
         if not self._frame_stamps:
-            raise InsufficientDataError('read', 'no radar frame in the recording')
+            unset = self.counters.get('radar_stamps_unset', 0)
+            raise InsufficientDataError('read', 'no radar frame in the recording' + (
+                f': all {unset} radar messages carry header stamp 0 (a driver that does not '
+                'stamp its scans); the calibration times every message by its header stamp, '
+                'never by when it was received, so have the driver stamp each scan with its '
+                'measurement time' if unset else ''))
         order = self._without_copies(
             np.argsort(np.asarray(self._frame_stamps, np.int64), kind='stable'))
         frame_stamps = np.asarray(self._frame_stamps, np.int64)[order]

@@ -308,16 +308,17 @@ def read_recording(path: str | Path, config: CalibConfig, *,
         first_error: DecodeError | None = None
         for connection, received_ns, msg in _messages(reader, connections, path):
             try:
-                _add_message(builder, roles[connection.topic], connection, msg,
-                             velocity_field)
+                added = _add_message(builder, roles[connection.topic], connection, msg,
+                                     velocity_field)
             except DecodeError as err:
                 # One malformed cloud in a long drive (a driver's short write) costs one
                 # frame, as in the node; a topic none of whose clouds decode is refused below
                 builder.counters['radar_messages_malformed'] += 1
                 first_error = first_error or err
             else:
-                builder.note_receipt(roles[connection.topic], msgs.stamp_ns(msg.header),
-                                     received_ns)
+                if added:
+                    builder.note_receipt(roles[connection.topic],
+                                         msgs.stamp_ns(msg.header), received_ns)
             done += 1
             if progress is not None and done % _PROGRESS_EVERY == 0:
                 progress(done, total)
@@ -354,7 +355,10 @@ def _messages(reader: AnyReader, connections: list[Connection],
 
 
 def _add_message(builder: RecordingBuilder, role: str, connection: Connection, msg: Any,
-                 velocity_field: str) -> None:
+                 velocity_field: str) -> bool:
+    """Decode one message into the builder; False for a radar scan without a header
+    stamp (counted, as the node refuses it: the contract times by header stamps, never
+    by receipt)."""
     if role == 'radar':
         try:
             if connection.msgtype == msgs.RADARSCAN:
@@ -364,11 +368,15 @@ def _add_message(builder: RecordingBuilder, role: str, connection: Connection, m
         except DecodeError as err:
             raise DecodeError(f'{connection.topic} (stamp {msgs.stamp_ns(msg.header)} ns): '
                               f'{err}') from err
+        if frame.stamp_ns <= 0:
+            builder.counters['radar_stamps_unset'] += 1
+            return False
         builder.add_radar_frame(frame)
     elif role == 'navsat':
         builder.add_fix(msgs.decode_navsatfix(msg))
     else:
         builder.add_odometry(msgs.decode_odometry(msg))
+    return True
 
 
 # --- writing -----------------------------------------------------------------------------

@@ -42,8 +42,16 @@ RADARSCAN = 'radar_msgs/msg/RadarScan'
 #: Radial-velocity field names tried in this order when ``radar.velocity_field`` is empty.
 #: The contract's names, then radar_msgs' ``doppler_velocity`` (a RadarScan turned into a
 #: cloud). Each is also found in another case (CARLA's ROS bridge writes ``Velocity``).
+#: A bare ``v`` comes last: drivers that write x, y, z, v mean the radial velocity, but a
+#: camera's cloud with texture coordinates u, v does not (``_choose_velocity_field``).
 VELOCITY_FIELD_NAMES = ('velocity', 'radial_velocity', 'radial_speed', 'doppler', 'v_r', 'vr',
-                        'range_rate', 'doppler_velocity')
+                        'range_rate', 'doppler_velocity', 'v')
+#: Spherical position fields (m, rad), each with the names drivers use for it: the
+#: contract's first, then the ``*_angle`` spelling (Continental's ARS548 driver, radar_msgs
+#: conversions). CARLA's ``AzimuthAngle`` is not among them: it turns clockwise, and its
+#: clouds carry x, y, z anyway.
+SPHERICAL_FIELD_NAMES = (('range',), ('azimuth', 'azimuth_angle'),
+                         ('elevation', 'elevation_angle'))
 
 # sensor_msgs/msg/PointField datatype constants -> numpy type codes (byte order added later)
 _POINTFIELD_TYPES: dict[int, str] = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4',
@@ -163,7 +171,17 @@ def lacks_velocity_field(msg: Any, velocity_field: str = '') -> bool:
         return False
     if velocity_field:
         return _field_named(table, velocity_field) is None
-    return all(_field_named(table, name) is None for name in VELOCITY_FIELD_NAMES)
+    return _velocity_field_among(table) is None
+
+
+def _velocity_field_among(table: Mapping[str, tuple[int, int]]) -> str | None:
+    """The first of ``VELOCITY_FIELD_NAMES`` the cloud has (a ``v`` beside a ``u`` is a
+    texture coordinate, not a velocity), else None."""
+    for name in VELOCITY_FIELD_NAMES:
+        found = _field_named(table, name)
+        if found is not None and not (name == 'v' and _field_named(table, 'u') is not None):
+            return found
+    return None
 
 
 def _choose_velocity_field(table: Mapping[str, tuple[int, int]], velocity_field: str) -> str:
@@ -173,10 +191,9 @@ def _choose_velocity_field(table: Mapping[str, tuple[int, int]], velocity_field:
             raise DecodeError(f'PointCloud2 has no velocity field {velocity_field!r} '
                               f'(radar.velocity_field); fields found: {_fields_listing(table)}')
         return found
-    for name in VELOCITY_FIELD_NAMES:
-        found = _field_named(table, name)
-        if found is not None:
-            return found
+    found = _velocity_field_among(table)
+    if found is not None:
+        return found
     raise DecodeError(f'PointCloud2 has no radial-velocity field (looked for '
                       f'{", ".join(VELOCITY_FIELD_NAMES)}; set radar.velocity_field); fields '
                       f'found: {_fields_listing(table)}')
@@ -227,7 +244,8 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
         return RadarFrame(stamp, np.zeros((0, 3)), np.zeros(0))
     table = _field_table(fields)
     cartesian = [_field_named(table, name) for name in ('x', 'y', 'z')]
-    polar = [_field_named(table, name) for name in ('range', 'azimuth', 'elevation')]
+    polar = [next((found for found in (_field_named(table, name) for name in names)
+                   if found is not None), None) for names in SPHERICAL_FIELD_NAMES]
     if None not in cartesian:
         position_names, spherical = tuple(str(n) for n in cartesian), False
     elif None not in polar:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.errors import BagReadError, DecodeError
+from radar_calib_ros.errors import BagReadError, DecodeError, InsufficientDataError
 from radar_calib_ros.io import messages as m
 from radar_calib_ros.io.bag import radar_topics, read_recording, select_topics, write_bag
 from radar_calib_ros.io.geo import LocalFrame
@@ -118,6 +118,38 @@ def test_round_trip_exact_targets_and_poses(tmp_path: Path, ts: Any, storage: st
     np.testing.assert_allclose(np.hypot(*rec.vehicle.velocities_mps[:, :2].T),
                                math.sqrt(10.0 ** 2 - 0.01 ** 2))
     np.testing.assert_allclose(rec.vehicle.yaw_rate_rps, 0.5)
+
+
+def test_radar_scans_without_a_stamp_are_left_out_and_named(tmp_path: Path, ts: Any) -> None:
+    """A radar driver that leaves header.stamp 0 on some scans: those are left out and
+    counted for a note (the contract times by header stamps, never receipt; the node refuses
+    them too); with every scan unstamped, the failure names the cause instead of clocks that
+    'do not overlap'."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    s = scene(seed=2)
+
+    def unstamped(every: int) -> list[Item]:
+        items, k = [], 0
+        for topic, msgtype, bag_ns, msg in bag_messages(ts, s):
+            if msgtype == m.POINTCLOUD2:
+                if k % every == 0:
+                    msg.header.stamp.sec = msg.header.stamp.nanosec = 0
+                k += 1
+            items.append((topic, msgtype, bag_ns, msg))
+        return items
+
+    write_bag(tmp_path / 'some', unstamped(3), typestore=ts)
+    rec = read_recording(tmp_path / 'some', CalibConfig())
+    unset = len(range(0, len(s['frames']), 3))
+    assert rec.counters['radar_stamps_unset'] == unset
+    assert rec.frame_stamps_ns.size == len(s['frames']) - unset and rec.frame_stamps_ns.min() > 0
+    assert any(f'{unset} of the radar\'s {len(s["frames"])} messages carry no header stamp'
+               in note for note in _data_notes(rec, []))
+    write_bag(tmp_path / 'all', unstamped(1), typestore=ts)
+    with pytest.raises(InsufficientDataError, match='all 15 radar messages carry header stamp '
+                       '0 .* never by when it was received'):
+        read_recording(tmp_path / 'all', CalibConfig())
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])

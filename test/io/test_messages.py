@@ -140,6 +140,37 @@ def test_xyz_preferred_over_spherical(ts: Any) -> None:
     np.testing.assert_array_equal(frame.positions_m, XYZ)
 
 
+def test_spherical_angle_fields_spelled_with_angle(ts: Any) -> None:
+    """range, azimuth_angle, elevation_angle, range_rate (the ARS548 driver's spelling; an
+    eighth probe's cloud was refused as having no position fields) decode as range,
+    azimuth, elevation."""
+    names = ('range', 'azimuth_angle', 'elevation_angle', 'range_rate')
+    fields = [(n, i * 4, FLOAT32) for i, n in enumerate(names)]
+    point = {'range': 20.0, 'azimuth_angle': 0.5, 'elevation_angle': -0.1, 'range_rate': -4.0}
+    frame = m.decode_pointcloud(hand_cloud(ts, fields, [point], point_step=16))
+    r, az, el = (float(np.float32(v)) for v in (20.0, 0.5, -0.1))
+    np.testing.assert_allclose(frame.positions_m, [[r * math.cos(el) * math.cos(az),
+                                                    r * math.cos(el) * math.sin(az),
+                                                    r * math.sin(el)]], atol=1e-6)
+    np.testing.assert_array_equal(frame.radial_velocity_mps, [-4.0])
+
+
+def test_a_bare_v_is_the_velocity_unless_beside_a_u(ts: Any) -> None:
+    """x, y, z, v: v is the radial velocity (the last name tried); x, y, z, u, v (a
+    camera's texture coordinates) has no radial velocity."""
+    xyzv = [('x', 0, FLOAT32), ('y', 4, FLOAT32), ('z', 8, FLOAT32), ('v', 12, FLOAT32)]
+    points = [dict(p, v=p['velocity']) for p in POINTS]
+    frame = m.decode_pointcloud(hand_cloud(ts, xyzv, points, point_step=16))
+    np.testing.assert_array_equal(frame.radial_velocity_mps, VEL)
+    with_u = xyzv + [('u', 16, FLOAT32)]
+    msg = hand_cloud(ts, with_u, points, point_step=20)
+    assert m.lacks_velocity_field(msg)
+    with pytest.raises(DecodeError, match='no radial-velocity field'):
+        m.decode_pointcloud(msg)
+    # named, it is taken whatever its neighbours
+    np.testing.assert_array_equal(m.decode_pointcloud(msg, 'v').radial_velocity_mps, VEL)
+
+
 @pytest.mark.parametrize('row_pad', [0, 5])
 def test_height_greater_than_one(ts: Any, row_pad: int) -> None:
     rng = np.random.default_rng(3)
