@@ -361,13 +361,15 @@ class LiveCalibrator:
         # The node's clock is one clock for every stream, as a recorder's is: it shows radar
         # stamps seconds off the poses' or jumping (``recording._receipt_checks``); a
         # sample held to confirm a jump counts as received when released, a moment late.
-        self._builder.note_receipt(stream, stamp_ns, self._now_ns())
+        added = True
         if isinstance(sample, RadarFrame):
             self._builder.add_radar_frame(sample)
         elif isinstance(sample, FixSample):
-            self._builder.add_fix(sample)
+            added = self._builder.add_fix(sample)
         else:
-            self._builder.add_odometry(sample)
+            added = self._builder.add_odometry(sample)
+        if added:
+            self._builder.note_receipt(stream, stamp_ns, self._now_ns())
         self.counters[f'buffered.{stream}'] += 1
         if self._oldest_ns is None or self._newest_ns is None:
             self._oldest_ns = self._newest_ns = stamp_ns

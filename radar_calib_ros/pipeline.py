@@ -432,6 +432,15 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      'use_sim_time beside a simulator, or not synchronised?). It was left out '
                      'and the heading taken from the course over ground; stamp the Odometry '
                      'on the fixes\' clock.')
+    restarts = recording.counters.get('stamps_restarted', 0)
+    if restarts:
+        back_s = recording.counters.get('stamps_restart_back_ms', 0) / 1000.0
+        at_s = recording.counters.get('stamps_restart_at_s', 0)
+        more = f' (and {restarts - 1} more time(s))' if restarts > 1 else ''
+        notes.append(f'The header stamps of every stream fell back by {back_s:.1f} s at once, '
+                     f'{at_s} s into the recording{more}: a simulator restarted, or recordings '
+                     'joined? Each part was calibrated on its own stamps, the later placed '
+                     'after the earlier; record each run on its own to be sure.')
     unset = recording.counters.get('radar_stamps_unset', 0)
     if unset:
         total = unset + recording.counters.get('radar_frames', 0)

@@ -369,6 +369,9 @@ class RecordingBuilder:
                 'stamp its scans); the calibration times every message by its header stamp, '
                 'never by when it was received, so have the driver stamp each scan with its '
                 'measurement time' if unset else ''))
+        joined = self._joined_restarts()
+        if joined is not None:
+            return joined.build()
         order = self._without_copies(
             np.argsort(np.asarray(self._frame_stamps, np.int64), kind='stable'))
         frame_stamps = np.asarray(self._frame_stamps, np.int64)[order]
@@ -408,6 +411,66 @@ class RecordingBuilder:
         return Recording(frame_stamps, targets, vehicle, frame,
                          radar_frame_id=self._config.radar.frame_id, counters=counters,
                          fix_sigma_m=self._fix_sigma())
+
+    def _joined_restarts(self) -> RecordingBuilder | None:
+        """A copy with the stamps after a restart of every stream's clock moved after the
+        stamps before it (``_RESTART_GAP_S`` apart), else None when there is none.
+
+        Why: a simulator reset mid-recording (Gazebo's world reset, CARLA restarted) sets
+        every header stamp back to its start: sorted by stamp, the second drive lies over
+        the first and each radar frame is paired with the pose of the other drive (an
+        independent probe: 'no consistent track'). Told from the recorder's clock (every
+        stream's stamps fall back by the same step at the same moment, unlike a radar clock
+        that steps alone), the later part is shifted by one amount for every stream, so
+        that within each part the streams keep their stamped relation exactly; the gap
+        between the parts exceeds any ``sync.max_pose_gap``, so nothing is paired across.
+        The receipts move by the gap too, so the receipt checks see the clocks as before.
+        """
+        radar_received = np.asarray(self._radar_received, np.int64)
+        radar_lag = np.asarray(self._radar_lag, np.int64)
+        is_fix = np.asarray(self._pose_is_fix, bool)
+        pose_received = np.asarray(self._pose_received, np.int64)
+        pose_lag = np.asarray(self._pose_lag, np.int64)
+        if (radar_received.size != len(self._frame_stamps)
+                or int(is_fix.sum()) != len(self._fixes)
+                or int((~is_fix).sum()) != len(self._odoms)):
+            return None  # samples appended without their receipts (a test's, a tool's)
+        streams = [(radar_received, radar_lag), (pose_received[is_fix], pose_lag[is_fix]),
+                   (pose_received[~is_fix], pose_lag[~is_fix])]
+        steps = [_restart_step(received, lag) if received.size else None
+                 for received, lag in streams]
+        present = [step for (received, _), step in zip(streams, steps) if received.size]
+        if any(step is None for step in present) or len(present) < 2:
+            return None
+        back_ns = [step[1] for step in present if step is not None]
+        at_ns = [step[2] for step in present if step is not None]
+        if (max(back_ns) - min(back_ns) > _RESTART_AGREE_S * 1e9
+                or max(at_ns) - min(at_ns) > _RESTART_AGREE_S * 1e9):
+            return None
+        shift = int(np.median(back_ns)) + int(_RESTART_GAP_S * 1e9)
+        gap = int(_RESTART_GAP_S * 1e9)
+        later = [step[0] if step is not None else np.zeros(0, bool) for step in steps]
+        copy = self.snapshot()
+        copy._frame_stamps = [stamp + shift if moved else stamp
+                              for stamp, moved in zip(self._frame_stamps, later[0])]
+        copy._fixes = [(f[0] + shift, *f[1:]) if moved else f
+                       for f, moved in zip(self._fixes, later[1])]
+        copy._odoms = [(o[0] + shift, *o[1:]) if moved else o
+                       for o, moved in zip(self._odoms, later[2])]
+        copy._radar_received = list(radar_received + gap * later[0])
+        copy._radar_lag = list(radar_lag + (gap - shift) * later[0])
+        pose_later = np.zeros(is_fix.size, bool)
+        pose_later[is_fix], pose_later[~is_fix] = later[1], later[2]
+        copy._pose_received = list(pose_received + gap * pose_later)
+        copy._pose_lag = list(pose_lag + (gap - shift) * pose_later)
+        copy.counters['stamps_restarted'] += 1
+        copy.counters.setdefault('stamps_restart_back_ms', int(round(np.median(back_ns) / 1e6)))
+        copy.counters.setdefault('stamps_restart_at_s', int(round(
+            (min(at_ns) - int(min(streams[0][0].min(), pose_received.min()))) * 1e-9)))
+        _LOG.warning('every stream\'s header stamps fall back by %.1f s at once (a simulator '
+                     'restarted?): the part after is taken after the part before',
+                     np.median(back_ns) * 1e-9)
+        return copy
 
     def _without_copies(self, order: I64) -> I64:
         """``order`` without the radar messages that repeat an earlier one exactly (same
@@ -742,6 +805,41 @@ def interpolate_poses(vehicle: VehicleTrack, stamps_ns: I64, max_gap_s: float) -
     gap = tv[upper] - tv[upper - 1]
     valid = (tq >= tv[0]) & (tq <= tv[-1]) & (gap <= max_gap_s)
     return PoseSamples(positions, yaw, velocities, yaw_rate, valid)
+
+
+#: A lasting fall of a stream's header stamps against the recorder's clock of more than
+#: this is a restart [s]; streams whose falls differ by less, and come this close in time,
+#: fell together [s]; the gap left between the parts [s] (above any sync.max_pose_gap).
+_RESTART_BACK_S = 5.0
+_RESTART_AGREE_S = 2.0
+_RESTART_GAP_S = 30.0
+
+
+def _restart_step(received: I64, lag: I64) -> tuple[np.ndarray, int, int] | None:
+    """(messages after the fall, fall [ns], when it came [recorder's ns]) of the largest
+    lasting fall of one stream's header stamps against its receipts, or None.
+
+    In receipt order the lag (received - stamp) jumps up by the fall; a median over
+    ``_RECEIPT_WINDOW`` messages ignores single late messages, and each message is then
+    given to the part its own lag is nearer (messages of the old clock still in flight)."""
+    if received.size < 2 * _RECEIPT_WINDOW:
+        return None
+    order = np.argsort(received, kind='stable')
+    ordered = lag[order].astype(np.float64)
+    smooth = ndimage.median_filter(ordered, size=_RECEIPT_WINDOW, mode='nearest')
+    step = np.diff(smooth)
+    k = int(np.argmax(step))
+    if step[k] <= _RESTART_BACK_S * 1e9:
+        return None
+    before, after = float(np.median(ordered[:k + 1])), float(np.median(ordered[k + 1:]))
+    if after - before <= _RESTART_BACK_S * 1e9:
+        return None
+    later_ordered = np.zeros(ordered.size, bool)
+    later_ordered[max(0, k + 1 - _RECEIPT_WINDOW):] = True
+    later_ordered &= ordered > 0.5 * (before + after)
+    later = np.zeros(ordered.size, bool)
+    later[order] = later_ordered
+    return later, int(round(after - before)), int(received[order][k + 1])
 
 
 def _receipts_from(stamp_ns: int, lags: list[int], received: list[int]) -> list[int]:

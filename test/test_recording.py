@@ -919,3 +919,62 @@ def test_odometry_fills_the_path_between_slow_fixes_but_not_an_outage(
                               np.interp(radar_t, t, speed * np.sin(yaw))])
     v_err = np.linalg.norm(poses.velocities_mps[~in_outage, :2] - true_v[~in_outage], axis=1)
     assert np.median(v_err) < 0.05 and v_err.max() < 0.3, (np.median(v_err), v_err.max())
+
+
+def _two_runs(poses_restart: bool) -> RecordingBuilder:
+    """Two 30 s runs recorded one after the other, the first eastbound, the second
+    northbound, from the same start; in the second every stream's stamps start again at T0
+    (a simulator reset), or, without ``poses_restart``, only the radar's do (its clock
+    stepped back)."""
+    frame = LocalFrame.at(LAT0, LON0)
+    builder = RecordingBuilder(CalibConfig())
+    events = []
+    for run in (0, 1):
+        recorded = T0 + run * 32 * 10**9 + 5_000_000
+        for k in range(30 * 15):
+            stamp = T0 + k * 66_666_667  # the radar's stamps start again either way
+            events.append((recorded + k * 66_666_667, 'radar', stamp, run))
+        for k in range(30 * 10):
+            stamp = T0 + k * 100_000_000
+            if not poses_restart:
+                stamp += run * 32 * 10**9
+            events.append((recorded + k * 100_000_000 + 1, 'fix', stamp, run, k * 0.1))
+    for event in sorted(events):
+        received, kind, stamp, run = event[:4]
+        if kind == 'radar':
+            builder.add_radar_frame(RadarFrame(stamp, np.array([[10.0 + run, 0.0, 0.0]]),
+                                               np.ones(1)))
+        else:
+            t = event[4]
+            east, north = (10.0 * t, 0.0) if run == 0 else (0.0, 10.0 * t)
+            lat, lon, alt = frame.local_to_geodetic(np.array([[east, north, 0.0]]))
+            builder.add_fix(FixSample(stamp, lat[0], lon[0], alt[0], 2, (0.02, 0.03)))
+        builder.note_receipt('radar' if kind == 'radar' else 'navsat', stamp, received)
+    return builder
+
+
+def test_a_restart_of_every_stream_keeps_the_two_runs_apart() -> None:
+    """Every stream's stamps start again halfway (a simulator reset): the second run is
+    placed after the first, each radar frame is paired with a pose of its own run, a note
+    names it. A radar clock that alone steps back is no restart: left to the jump note."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    rec = _two_runs(poses_restart=True).build()
+    assert rec.counters['stamps_restarted'] == 1
+    assert rec.counters['stamps_restart_back_ms'] == pytest.approx(32_000, abs=50)
+    assert rec.frame_stamps_ns.size == 900
+    run = rec.targets.positions_m[:, 0] - 10.0           # one target per frame: its run
+    first_end = rec.frame_stamps_ns[run == 0].max()
+    assert rec.frame_stamps_ns[run == 1].min() > first_end + 10**10
+    poses = interpolate_poses(rec.vehicle, rec.frame_stamps_ns, 0.5)
+    assert poses.valid.sum() > 850
+    east, north = poses.positions_m[:, 0], poses.positions_m[:, 1]
+    moved = poses.valid & (np.hypot(east, north) > 1.0)
+    assert np.all(np.abs(north[moved & (run == 0)]) < 1e-3)
+    assert np.all(np.abs(east[moved & (run == 1)]) < 1e-3)
+    assert any('fell back by 32.0 s at once' in note for note in _data_notes(rec, []))
+    assert 'radar_stamp_jump_ms' not in rec.counters
+
+    alone = _two_runs(poses_restart=False).build()
+    assert 'stamps_restarted' not in alone.counters
+    assert alone.counters['radar_stamp_jump_ms'] == pytest.approx(-32_000, abs=50)

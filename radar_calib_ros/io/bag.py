@@ -356,9 +356,10 @@ def _messages(reader: AnyReader, connections: list[Connection],
 
 def _add_message(builder: RecordingBuilder, role: str, connection: Connection, msg: Any,
                  velocity_field: str) -> bool:
-    """Decode one message into the builder; False for a radar scan without a header
-    stamp (counted, as the node refuses it: the contract times by header stamps, never
-    by receipt)."""
+    """Decode one message into the builder; False when it was dropped (counted): a pose
+    the builder refuses, a radar scan without a header stamp (the node refuses it too: the
+    contract times by header stamps, never by receipt). Only kept messages note their
+    receipt, so that receipts and samples correspond one to one."""
     if role == 'radar':
         try:
             if connection.msgtype == msgs.RADARSCAN:
@@ -372,11 +373,10 @@ def _add_message(builder: RecordingBuilder, role: str, connection: Connection, m
             builder.counters['radar_stamps_unset'] += 1
             return False
         builder.add_radar_frame(frame)
-    elif role == 'navsat':
-        builder.add_fix(msgs.decode_navsatfix(msg))
-    else:
-        builder.add_odometry(msgs.decode_odometry(msg))
-    return True
+        return True
+    if role == 'navsat':
+        return builder.add_fix(msgs.decode_navsatfix(msg))
+    return builder.add_odometry(msgs.decode_odometry(msg))
 
 
 # --- writing -----------------------------------------------------------------------------
