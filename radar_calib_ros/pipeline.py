@@ -348,6 +348,21 @@ _CLOCK_JUMP_S = 10.0
 _RECEIPT_NOTE_S = 1.0
 
 
+def _fix_grade_failure_note(recording: Recording) -> list[str]:
+    """For a failure: the vehicle's fixes are not RTK, named with their error, which moves
+    every pass's track of the vehicle by that much (a probe's standalone-GNSS drive failed
+    with 'no consistent track' alone, as if the radar or the drives were at fault)."""
+    grade = recording.fix_grade
+    if grade == 'rtk' or not recording.counters.get('fixes'):
+        return []
+    what = 'standalone GNSS (NavSatFix status 0)' if grade == 'standalone' else (
+        'SBAS or DGPS (NavSatFix status 1)')
+    return [f'The vehicle\'s fixes are {what}, about {_length(recording.pose_sigma_m[0])} '
+            '(1 sigma) horizontally: errors that move each pass\'s track of the vehicle '
+            'apart by as much, so the passes seldom agree and no result could be better '
+            'than that. Calibrate with an RTK fix.']
+
+
 def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
     """Notes on the radar's clock: its stamps far off the poses' or jumping against the
     recorder's clock (counters of ``recording._receipt_checks``, bags only), and radar
@@ -581,7 +596,7 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
     try:
         return _run_calibration(recording, _scaled_to_vehicle(config), progress)
     except InsufficientDataError as err:
-        notes = _clock_notes(recording, config)
+        notes = _clock_notes(recording, config) + _fix_grade_failure_note(recording)
         if type(err) is not InsufficientDataError or not notes:
             raise
         raise InsufficientDataError(err.stage, ' '.join((err.reason.rstrip('.') + '.',

@@ -104,7 +104,7 @@ def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
     assert 'leap' not in str(err.value)
 
 
-def _recording(fix_period_s: float, radar_start_s: float = 0.0) -> Any:
+def _recording(fix_period_s: float, radar_start_s: float = 0.0, status: int = 2) -> Any:
     from radar_calib_ros.io.geo import LocalFrame
     from radar_calib_ros.recording import RecordingBuilder
     from radar_calib_ros.types import FixSample, RadarFrame
@@ -118,7 +118,7 @@ def _recording(fix_period_s: float, radar_start_s: float = 0.0) -> Any:
     for k in range(int(10.0 / fix_period_s) + 1):
         t = k * fix_period_s
         lat, lon, alt = frame.local_to_geodetic(np.array([[10.0 * t, 0.0, 0.0]]))
-        builder.add_fix(FixSample(t0 + int(t * 1e9), lat[0], lon[0], alt[0], 2))
+        builder.add_fix(FixSample(t0 + int(t * 1e9), lat[0], lon[0], alt[0], status))
     return builder.build()
 
 
@@ -136,6 +136,22 @@ def test_poses_too_sparse_or_apart_in_time_are_named() -> None:
     with pytest.raises(InsufficientDataError) as err:
         run_calibration(_recording(0.1), CalibConfig())
     assert 'max_pose_gap' not in str(err.value) and 'overlap' not in str(err.value)
+
+
+@pytest.mark.parametrize('status, named',
+                         [(0, 'standalone GNSS'), (1, 'SBAS or DGPS'), (2, None)])
+def test_a_failure_on_fixes_below_rtk_names_them(status: int, named: str | None) -> None:
+    """A drive that cannot be calibrated on standalone or SBAS fixes: the failure names the
+    fixes and their error besides its own reason; on RTK it does not."""
+    from radar_calib_ros.pipeline import run_calibration
+
+    with pytest.raises(InsufficientDataError) as err:
+        run_calibration(_recording(0.1, status=status), CalibConfig())
+    if named is None:
+        assert 'Calibrate with an RTK fix' not in str(err.value)
+    else:
+        assert f"The vehicle's fixes are {named}" in str(err.value)
+        assert 'Calibrate with an RTK fix' in str(err.value)
 
 
 def test_a_2d_radar_is_named_in_the_advice() -> None:
