@@ -163,6 +163,23 @@ def test_folded_radial_velocities_are_unfolded_and_said(
     assert errors['horizontal_m'] < 0.10 and errors['rotation_deg'] < 0.3
 
 
+def test_a_gnss_receiver_at_1_hz_beside_the_ins_calibrates(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The slow_gnss scenario: NavSatFix at 1 Hz, Odometry at 50 Hz. The default
+    sync.max_pose_gap (0.5 s) is kept: the Odometry bridges the fixes, and the calibration
+    lands as with fast fixes (it used to be refused: 'poses come every 1.00 s')."""
+    from radar_calib_ros.groundtruth import calibration_errors
+    from radar_calib_ros.result import load_result
+    from radar_calib_ros.sim import simulate
+    bag = tmp_path / 'slow'
+    summary = simulate(bag, seed=3, duration_s=150.0, scenario='slow_gnss')
+    code, out, err = _run(['calibrate', str(bag), '--params', str(bag / 'params.yaml'),
+                           '--output', str(tmp_path / 'r.yaml')], capsys)
+    assert code == 0, err
+    errors = calibration_errors(load_result(tmp_path / 'r.yaml'), summary.truth)
+    assert errors['horizontal_m'] < 0.10 and errors['rotation_deg'] < 0.3, errors
+
+
 def test_vehicle_never_in_view_exits_1_without_result(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from radar_calib_ros.sim import simulate

@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 from radar_calib_ros.errors import BagReadError, ConfigError
 from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.result import calibration_dict
-from radar_calib_ros.sim.gnss import simulate_gnss, vehicle_poses
+from radar_calib_ros.sim.gnss import RATE_HZ, simulate_gnss, vehicle_poses
 from radar_calib_ros.sim.radar import RadarModel, RadarPose, frame_times, simulate_radar
 from radar_calib_ros.sim.roads import Junction
 from radar_calib_ros.sim.scatter import (
@@ -202,6 +202,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
     m = gnss.time_s.size
     fix_receive_ns = gnss_stamps_ns + np.round(r_stamps.uniform(0.003, 0.008, m) * 1e9).astype(
         np.int64)
+    # a slower receiver publishes every k-th epoch (the Odometry keeps every one)
+    fix_index = np.arange(0, m, max(1, int(round(RATE_HZ / spec.fix_rate_hz))))
     odom_receive_ns = (gnss_stamps_ns + np.round(r_stamps.uniform(0.002, 0.006, m) * 1e9)
                        .astype(np.int64)) if spec.odometry else None
 
@@ -209,7 +211,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
     n_messages = write_recording(
         out, targets=first.targets, radar_stamps_ns=first.stamps_ns,
         radar_receive_ns=first.receive_ns, gnss=gnss, gnss_stamps_ns=gnss_stamps_ns,
-        fix_receive_ns=fix_receive_ns, odom_receive_ns=odom_receive_ns,
+        fix_receive_ns=fix_receive_ns[fix_index], fix_index=fix_index,
+        odom_receive_ns=odom_receive_ns,
         layout=spec.point_layout, velocity_field=spec.velocity_field, storage=storage,
         radar_topic=first.topic, radar_frame=first.frame_id,
         extra_radars=[RadarStream(r.topic, r.frame_id, r.targets, r.stamps_ns, r.receive_ns)

@@ -104,6 +104,8 @@ class Scenario:
     point_layout: str = 'xyz'
     velocity_field: str = 'velocity'
     odometry: bool = True
+    #: NavSatFix rate [Hz], at most the GNSS/INS rate (50 Hz); the Odometry stays at 50 Hz
+    fix_rate_hz: float = 50.0
     clutter_density: float = 1.0
     #: further radars on other poles, recorded in parallel with ``radar`` (a site with
     #: several radars). Then the topics are /radar_1/points ... with frames radar_1 ...
@@ -148,6 +150,14 @@ _SCENARIO_LIST: tuple[Scenario, ...] = (
                      lanes_in=2, lanes_out=2, lane_width_m=3.5),
         RadarMount((-15.0, -16.5), 7.0, 6.0, -0.5, (20.0, 18.0)),
         odometry=False),
+    Scenario(
+        'slow_gnss',
+        'Vienna (48.2N 16.4E, zone 33): the GNSS receiver at its default 1 Hz beside the '
+        '50 Hz INS Odometry; the path between fixes is the Odometry\'s.',
+        Site('Vienna', 48.20820, 16.37380, 190.0, (0.003, 0.001)),
+        JunctionSpec(arm_deg=(8.0, 95.0, 188.0, 280.0), phases=((0, 2), (1, 3))),
+        RadarMount((14.0, -16.0), 6.0, 7.5, 0.6, (-25.0, 15.0)),
+        fix_rate_hz=1.0),
     Scenario(
         'clock_offset',
         'Hamburg (53.6N 10.0E): the radar clock is 40 ms behind GNSS time (stamps + 0.040 s '

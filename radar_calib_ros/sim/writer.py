@@ -68,13 +68,17 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
                     gnss_stamps_ns: np.ndarray, fix_receive_ns: np.ndarray,
                     odom_receive_ns: np.ndarray | None, layout: str, velocity_field: str,
                     storage: str, radar_topic: str = RADAR_TOPIC, radar_frame: str = 'radar',
-                    extra_radars: Sequence[RadarStream] = ()) -> int:
+                    extra_radars: Sequence[RadarStream] = (),
+                    fix_index: np.ndarray | None = None) -> int:
     """Write the bag; returns the number of messages.
 
     Parameters
     ----------
     targets : RadarTargets
         Sorted by frame; frame f is published with stamp ``radar_stamps_ns[f]``.
+    fix_index : ndarray or None
+        The GNSS epochs published as NavSatFix (``fix_receive_ns`` has one receipt per
+        entry); None: every epoch.
     odom_receive_ns : ndarray or None
         None leaves the Odometry topic out.
     radar_topic, radar_frame : str
@@ -98,8 +102,9 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
     keys = [np.column_stack([r.receive_ns, np.full(r.stamps_ns.size, -len(radars) + k,
                                                    np.int64), np.arange(r.stamps_ns.size)])
             for k, r in enumerate(radars)]
+    fixes = np.arange(fix_receive_ns.size) if fix_index is None else np.asarray(fix_index)
     keys.append(np.column_stack([fix_receive_ns, np.ones(fix_receive_ns.size, np.int64),
-                                 np.arange(fix_receive_ns.size)]))
+                                 fixes]))
     if odom_receive_ns is not None:
         keys.append(np.column_stack([odom_receive_ns,
                                      np.full(odom_receive_ns.size, 2, np.int64),
