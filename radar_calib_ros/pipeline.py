@@ -231,6 +231,12 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
         failure = first
     n_steps = int(max_off / _CLOCK_STEP_S + 1e-9)
     offsets = [sign * k * _CLOCK_STEP_S for k in range(1, n_steps + 1) for sign in (1, -1)]
+    # Where the fixes' stamps were found to lag the Odometry's, the poses run on the
+    # Odometry's clock; a radar on the fixes' clock as stamped is then -lag away, maybe
+    # beyond the bound (a ninth probe's Odometry stamped 0.5-1 s late): tried too.
+    lag_s = recording.counters.get('fix_lag_ms', 0) / 1000.0
+    if abs(lag_s) > max_off:
+        offsets += [-lag_s + k * _CLOCK_STEP_S for k in range(-2, 3)]
     best: tuple[tuple[int, int], float, list[Hypothesis], HypothesisSelection] | None = None
     for offset in offsets:
         shifted = replace(config, sync=replace(config.sync,
@@ -346,6 +352,29 @@ _CLOCK_JUMP_S = 10.0
 #: Radar stamps off the poses' as received, after sync.time_offset, worth a note [s]
 #: (transport latencies are milliseconds to a few hundred).
 _RECEIPT_NOTE_S = 1.0
+
+
+_ODOMETRY_LATE = 'The radar\'s stamps agree with the NavSatFix\'s as stamped'
+
+
+def _odometry_late_note(recording: Recording, fitted_offset_s: float) -> str | None:
+    """The note for fixes found to lag the Odometry by L (``recording._fix_lag``) when the
+    fitted clock offset is -L, not 0: the radar is on the fixes' clock, so it is rather the
+    Odometry that runs late (a ninth probe's Odometry stamped 0.3-1 s late was reported
+    as late fixes and a radar clock offset beyond its bound), else None."""
+    lag_s = recording.counters.get('fix_lag_ms', 0) / 1000.0
+    if not (abs(fitted_offset_s + lag_s) <= _SHIFT_CONFIRMED_S < abs(fitted_offset_s)):
+        return None
+    late_ms = -1000.0 * lag_s
+    how = (f'lag both by {late_ms:.0f} ms (seen where the vehicle turned or changed speed): '
+           'most likely the Odometry is stamped late (at output, or on a clock of its own)'
+           if late_ms > 0 else
+           f'run {-late_ms:.0f} ms ahead of both (seen where the vehicle turned or changed '
+           'speed): the Odometry stamped early, or the fixes and the radar both stamped late '
+           '(at output)')
+    return (f'{_ODOMETRY_LATE}, and the Odometry\'s {how}. The poses were put on the '
+            f'Odometry\'s clock, so the clock offset reported ({fitted_offset_s:+.3f} s) is the '
+            'radar\'s against the Odometry\'s stamps. Check how each is stamped.')
 
 
 def _fix_grade_failure_note(recording: Recording) -> list[str]:
@@ -541,7 +570,7 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      'with the radar frames they would have placed. Check the correction link, or '
                      'drive those passes again.')
     lag_ms = recording.counters.get('fix_lag_ms')
-    if lag_ms:
+    if lag_ms and not any(note.startswith(_ODOMETRY_LATE) for note in corrections):
         notes.append(f'The NavSatFix stamps lag the Odometry\'s by {lag_ms} ms (seen where the '
                      'vehicle turned or changed speed): each fix was taken at its stamp minus '
                      'that. Check how the GNSS driver stamps its fixes (at the epoch, not at '
@@ -716,7 +745,10 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                 'sync.time_offset if the clocks are known to differ, or drive through the '
                 'view with a stop or a turn to measure it.')
         max_off = config.sync.max_time_offset
-        if config.sync.estimate_time_offset and abs(current.time_offset_s) > max_off > 0:
+        odometry_late = _odometry_late_note(recording, current.time_offset_s)
+        if odometry_late is not None:
+            corrections.append(odometry_late)
+        elif config.sync.estimate_time_offset and abs(current.time_offset_s) > max_off > 0:
             # The bound is a soft prior in the fit: an estimate beyond it means the vehicle
             # could not be placed in time (a fifth probe's 1 Hz fixes: -0.42 s, truth 0).
             corrections.append(

@@ -1130,10 +1130,11 @@ def _position_velocities(t: F64, positions: F64, half_span_s: float = 0.2) -> F6
                             for i in range(positions.shape[1])])
 
 
-#: Latency of the fixes against the Odometry looked for [s], its grid step [s], the
+#: Latency of the fixes against the Odometry looked for [s] (a receiver at 1 Hz that stamps
+#: on output, or an Odometry stamped as late: a ninth probe's 1 s), its grid step [s], the
 #: smallest worth correcting [s] (a few centimetres of travel at urban speed), and how many
 #: standard errors it must stand clear of zero.
-_FIX_LAG_MAX_S = 0.5
+_FIX_LAG_MAX_S = 1.2
 _FIX_LAG_STEP_S = 0.01
 _FIX_LAG_MIN_S = 0.02
 _FIX_LAG_SIGMAS = 5.0

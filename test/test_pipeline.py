@@ -12,6 +12,9 @@ from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.types import Extrinsics, HypothesisSelection
 
+#: what stage 6's retry reads of a recording: its counters (here no fix lag)
+_NO_LAG: Any = type('FakeRecording', (), {'counters': {}})()
+
 
 def _selection(n_tracks: int) -> HypothesisSelection:
     return HypothesisSelection(
@@ -46,7 +49,7 @@ def _config(**sync: Any) -> CalibConfig:
 
 def test_agreement_at_the_given_offset_is_taken_as_it_is(monkeypatch: pytest.MonkeyPatch) -> None:
     tried = _fake_stage6(monkeypatch, {0.0: 3, 0.1: 6})
-    _, selection = pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+    _, selection = pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
     assert tried == [0.0] and selection.extrinsics.time_offset_s == 0.0
 
 
@@ -55,21 +58,61 @@ def test_no_agreement_retries_other_offsets_and_keeps_the_best(
     """Passes in opposite directions disagree under a clock offset: the offsets within
     sync.max_time_offset are tried and the one with most agreeing tracks starts stage 7."""
     tried = _fake_stage6(monkeypatch, {0.15: 4, 0.2: 6, -0.25: 5})
-    _, selection = pipeline._hypotheses((), None, None,  # type: ignore[arg-type]
+    _, selection = pipeline._hypotheses((), _NO_LAG, None,  # type: ignore[arg-type]
                                         _config(time_offset=0.0, max_time_offset=0.25))
     assert selection.extrinsics.time_offset_s == pytest.approx(0.2)
     expected = [0.0] + [s * k * 0.05 for k in range(1, 6) for s in (1, -1)]
     assert sorted(tried) == pytest.approx(sorted(expected))
 
 
+@pytest.mark.parametrize('lag_ms', [-800, 600])
+def test_no_agreement_also_tries_the_fixes_own_clock_beyond_the_bound(
+        monkeypatch: pytest.MonkeyPatch, lag_ms: int) -> None:
+    """Fixes found to lag the Odometry by L put the poses on the Odometry's clock; a radar
+    on the fixes' clock is then -L away, beyond sync.max_time_offset: -L and its neighbours
+    are tried too, and taken when stage 6 agrees only there (an Odometry stamped 0.5-1 s
+    late used to fail or land decimetres off)."""
+    lag_s = lag_ms / 1000.0
+    recording: Any = type('FakeRecording', (), {'counters': {'fix_lag_ms': lag_ms}})()
+    tried = _fake_stage6(monkeypatch, {round(-lag_s + 0.05, 6): 5})
+    _, selection = pipeline._hypotheses((), recording, None,  # type: ignore[arg-type]
+                                        _config(max_time_offset=0.25))
+    assert selection.extrinsics.time_offset_s == pytest.approx(-lag_s + 0.05)
+    assert all(round(-lag_s + k * 0.05, 6) in tried for k in range(-2, 3))
+    # a lag within the bound adds nothing: its offsets are tried anyway
+    within: Any = type('FakeRecording', (), {'counters': {'fix_lag_ms': 150}})()
+    tried = _fake_stage6(monkeypatch, {})
+    with pytest.raises(InsufficientDataError):
+        pipeline._hypotheses((), within, None, _config())  # type: ignore[arg-type]
+    near = [t for t in tried if abs(t) < 1.0]  # the leap seconds' tries lie further out
+    assert sorted(near) == pytest.approx(sorted([0.0] + [s * k * 0.05 for k in range(1, 6)
+                                                         for s in (1, -1)]))
+
+
+def test_the_odometry_late_note_only_when_the_radar_follows_the_fixes() -> None:
+    """Fixes found to lag the Odometry by L (the poses then on the Odometry's clock): a
+    fitted radar clock offset near -L says the radar is on the fixes' clock and names the
+    Odometry as the late one, with the sign said right; near 0 the fixes were late, and
+    the usual note stands."""
+    def recording(lag_ms: int) -> Any:
+        return type('FakeRecording', (), {'counters': {'fix_lag_ms': lag_ms}})()
+    late = pipeline._odometry_late_note(recording(-500), 0.499)
+    assert late is not None and 'lag both by 500 ms' in late and '(+0.499 s)' in late
+    early = pipeline._odometry_late_note(recording(300), -0.298)
+    assert early is not None and 'run 300 ms ahead of both' in early
+    assert pipeline._odometry_late_note(recording(-500), 0.003) is None
+    assert pipeline._odometry_late_note(recording(300), -0.001) is None
+    assert pipeline._odometry_late_note(recording(0), 0.3) is None
+
+
 def test_no_agreement_anywhere_or_no_offset_estimation_keeps_the_reason(
         monkeypatch: pytest.MonkeyPatch) -> None:
     tried = _fake_stage6(monkeypatch, {})
     with pytest.raises(InsufficientDataError, match=r'do not agree \(also at clock offsets'):
-        pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+        pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
     tried.clear()
     with pytest.raises(InsufficientDataError, match='do not agree$'):
-        pipeline._hypotheses((), None, None,  # type: ignore[arg-type]
+        pipeline._hypotheses((), _NO_LAG, None,  # type: ignore[arg-type]
                              _config(estimate_time_offset=False))
     assert tried == [0.0]
 
@@ -90,17 +133,17 @@ def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
     with pytest.raises(InsufficientDataError,
                        match=r'shifted by -18 s, a whole number of leap seconds .* set '
                              r'sync.time_offset to -18 and calibrate again'):
-        pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+        pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
     assert 18.0 in tried and -18.0 in tried and -17.95 in tried
     # other road users agreeing by chance at such an offset: the vehicle is not seen where
     # their calibration puts it, so no hint (a vehicle-never-in-view recording got one)
     seen['vehicle'] = False
     with pytest.raises(InsufficientDataError) as err:
-        pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+        pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
     assert 'leap' not in str(err.value)
     _fake_stage6(monkeypatch, {})
     with pytest.raises(InsufficientDataError) as err:
-        pipeline._hypotheses((), None, None, _config())  # type: ignore[arg-type]
+        pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
     assert 'leap' not in str(err.value)
 
 

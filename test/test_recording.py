@@ -60,8 +60,22 @@ def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: flo
     return builder, frame, omega
 
 
+def _weaving_drive(step_s: float, yaw_amplitude_rad: float, yaw_period_s: float
+                   ) -> tuple[np.ndarray, ...]:
+    """A minute of driving at 8-14 m/s (braking and accelerating) with the heading turning
+    back and forth: (t, speed, yaw, yaw rate, xy) sampled every ``step_s``."""
+    from scipy.integrate import cumulative_trapezoid
+
+    t = np.arange(0.0, 60.0, step_s)
+    speed = 11.0 + 3.0 * np.sin(2 * np.pi * t / 12.0)
+    yaw = yaw_amplitude_rad * np.sin(2 * np.pi * t / yaw_period_s)
+    xy = cumulative_trapezoid(np.column_stack([speed * np.cos(yaw), speed * np.sin(yaw)]),
+                              t, axis=0, initial=0.0)
+    return t, speed, yaw, np.gradient(yaw, t), xy
+
+
 @pytest.mark.parametrize('lag_ms, fix_hz', [
-    (0, 20), (100, 20), (-60, 20), (0, 2), (100, 2), (0, 1)])
+    (0, 20), (100, 20), (-60, 20), (0, 2), (100, 2), (0, 1), (-900, 20), (700, 5)])
 def test_fixes_stamped_late_against_the_odometry_are_put_back_in_time(
         lag_ms: int, fix_hz: int) -> None:
     """A receiver that stamps its fixes when it outputs them: each fix shows where the
@@ -69,18 +83,10 @@ def test_fixes_stamped_late_against_the_odometry_are_put_back_in_time(
     brakes the lag is found, the fixes are taken at their stamp minus it, and a note says
     so; fixes on time are left alone, also at 1-2 Hz (a ninth probe's fixes at 1-4 Hz were
     'corrected' by half their interval)."""
-    from scipy.integrate import cumulative_trapezoid
-
     from radar_calib_ros.pipeline import _data_notes
 
     frame = LocalFrame.at(LAT0, LON0)
-    t = np.arange(0.0, 60.0, 0.05)
-    # speed 8-14 m/s (braking and accelerating), heading turning back and forth
-    speed = 11.0 + 3.0 * np.sin(2 * np.pi * t / 12.0)
-    yaw = 0.6 * np.sin(2 * np.pi * t / 20.0)
-    rate = np.gradient(yaw, t)
-    xy = cumulative_trapezoid(np.column_stack([speed * np.cos(yaw), speed * np.sin(yaw)]),
-                              t, axis=0, initial=0.0)
+    t, speed, yaw, rate, xy = _weaving_drive(0.05, 0.6, 20.0)
     truth_at = (t - lag_ms / 1000.0)
     fix_xy = np.column_stack([np.interp(truth_at, t, xy[:, i]) for i in range(2)])
     lat, lon, alt = frame.local_to_geodetic(np.column_stack([fix_xy, np.zeros_like(t)]))
@@ -880,15 +886,8 @@ def test_odometry_fills_the_path_between_slow_fixes_but_not_an_outage(
     fixes: between fixes a second apart the poses follow the true arc to centimetres (the
     fixes alone, linearly, are decimetres off) and pair with radar frames at the default
     sync.max_pose_gap; inside the outage they do not."""
-    from scipy.integrate import cumulative_trapezoid
-
     frame = LocalFrame.at(LAT0, LON0)
-    t = np.arange(0.0, 60.0, 0.02)
-    speed = 11.0 + 3.0 * np.sin(2 * np.pi * t / 12.0)
-    yaw = 0.9 * np.sin(2 * np.pi * t / 15.0)
-    rate = np.gradient(yaw, t)
-    xy = cumulative_trapezoid(np.column_stack([speed * np.cos(yaw), speed * np.sin(yaw)]),
-                              t, axis=0, initial=0.0)
+    t, speed, yaw, rate, xy = _weaving_drive(0.02, 0.9, 15.0)
     lat, lon, alt = frame.local_to_geodetic(np.column_stack([xy, np.zeros_like(t)]))
     yaw_true = yaw + frame.local_convergence_rad(lat, lon) + math.radians(map_turn_deg)
     builder = RecordingBuilder(CalibConfig())

@@ -842,7 +842,10 @@ def _scan_time_offset(est: Extrinsics, candidates: I64, times: _Times, recording
     max_off = config.sync.max_time_offset
     if max_off <= 0.0 or candidates.size == 0:
         return est.time_offset_s
-    grid = np.arange(-max_off, max_off + 1e-9, 0.02)
+    # around the bound's centre, and around where stage 6 found agreement (beyond the bound
+    # when the fixes' and the Odometry's stamps disagree: ``pipeline._hypotheses``)
+    grid = np.union1d(np.arange(-max_off, max_off + 1e-9, 0.02),
+                      est.time_offset_s + np.arange(-0.1, 0.1 + 1e-9, 0.02))
     world = est.apply(recording.targets.positions_m[candidates])
     gate = config.refine.gate_m
     scores = np.empty(grid.size)
