@@ -165,9 +165,12 @@ def test_folded_radial_velocities_are_unfolded_and_said(
 
 def test_a_gnss_receiver_at_1_hz_beside_the_ins_calibrates(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The slow_gnss scenario: NavSatFix at 1 Hz, Odometry at 50 Hz. The default
-    sync.max_pose_gap (0.5 s) is kept: the Odometry bridges the fixes, and the calibration
-    lands as with fast fixes (it used to be refused: 'poses come every 1.00 s')."""
+    """The slow_gnss scenario: NavSatFix at 1 Hz, stamped 0.12 s late (on output), Odometry
+    at 50 Hz. The default sync.max_pose_gap (0.5 s) is kept: the Odometry bridges the fixes,
+    the fixes' lag is found and named, and the calibration lands as with fast fixes (it used
+    to be refused: 'poses come every 1.00 s')."""
+    import re
+
     from radar_calib_ros.groundtruth import calibration_errors
     from radar_calib_ros.result import load_result
     from radar_calib_ros.sim import simulate
@@ -176,6 +179,8 @@ def test_a_gnss_receiver_at_1_hz_beside_the_ins_calibrates(
     code, out, err = _run(['calibrate', str(bag), '--params', str(bag / 'params.yaml'),
                            '--output', str(tmp_path / 'r.yaml')], capsys)
     assert code == 0, err
+    lag = re.search(r"NavSatFix stamps lag the Odometry's by (-?\d+) ms", out + err)
+    assert lag is not None and 60 <= int(lag.group(1)) <= 180, out + err
     errors = calibration_errors(load_result(tmp_path / 'r.yaml'), summary.truth)
     assert errors['horizontal_m'] < 0.10 and errors['rotation_deg'] < 0.3, errors
 

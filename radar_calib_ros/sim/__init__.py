@@ -200,7 +200,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
     gnss = simulate_gnss(log, frame, scene.ground, spec.vehicle, duration, r_gnss)
     gnss_stamps_ns = epoch_ns + np.round(gnss.time_s * 1e9).astype(np.int64)
     m = gnss.time_s.size
-    fix_receive_ns = gnss_stamps_ns + np.round(r_stamps.uniform(0.003, 0.008, m) * 1e9).astype(
+    # a driver that stamps a fix on output stamps it late, and it arrives just after
+    fix_stamps_ns = gnss_stamps_ns + int(round(spec.fix_stamp_lag_s * 1e9))
+    fix_receive_ns = fix_stamps_ns + np.round(r_stamps.uniform(0.003, 0.008, m) * 1e9).astype(
         np.int64)
     # a slower receiver publishes every k-th epoch (the Odometry keeps every one)
     fix_index = np.arange(0, m, max(1, int(round(RATE_HZ / spec.fix_rate_hz))))
@@ -212,6 +214,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         out, targets=first.targets, radar_stamps_ns=first.stamps_ns,
         radar_receive_ns=first.receive_ns, gnss=gnss, gnss_stamps_ns=gnss_stamps_ns,
         fix_receive_ns=fix_receive_ns[fix_index], fix_index=fix_index,
+        fix_stamps_ns=fix_stamps_ns,
         odom_receive_ns=odom_receive_ns,
         layout=spec.point_layout, velocity_field=spec.velocity_field, storage=storage,
         radar_topic=first.topic, radar_frame=first.frame_id,

@@ -106,6 +106,9 @@ class Scenario:
     odometry: bool = True
     #: NavSatFix rate [Hz], at most the GNSS/INS rate (50 Hz); the Odometry stays at 50 Hz
     fix_rate_hz: float = 50.0
+    #: how much later than its epoch a NavSatFix is stamped [s] (a driver that stamps on
+    #: output, as nmea_navsat_driver does); the Odometry is stamped at its epoch
+    fix_stamp_lag_s: float = 0.0
     clutter_density: float = 1.0
     #: further radars on other poles, recorded in parallel with ``radar`` (a site with
     #: several radars). Then the topics are /radar_1/points ... with frames radar_1 ...
@@ -153,11 +156,12 @@ _SCENARIO_LIST: tuple[Scenario, ...] = (
     Scenario(
         'slow_gnss',
         'Vienna (48.2N 16.4E, zone 33): the GNSS receiver at its default 1 Hz beside the '
-        '50 Hz INS Odometry; the path between fixes is the Odometry\'s.',
+        '50 Hz INS Odometry, its fixes stamped on output 0.12 s after their epoch; the path '
+        'between fixes is the Odometry\'s.',
         Site('Vienna', 48.20820, 16.37380, 190.0, (0.003, 0.001)),
         JunctionSpec(arm_deg=(8.0, 95.0, 188.0, 280.0), phases=((0, 2), (1, 3))),
         RadarMount((14.0, -16.0), 6.0, 7.5, 0.6, (-25.0, 15.0)),
-        fix_rate_hz=1.0),
+        fix_rate_hz=1.0, fix_stamp_lag_s=0.12),
     Scenario(
         'clock_offset',
         'Hamburg (53.6N 10.0E): the radar clock is 40 ms behind GNSS time (stamps + 0.040 s '

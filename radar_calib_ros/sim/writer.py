@@ -69,7 +69,8 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
                     odom_receive_ns: np.ndarray | None, layout: str, velocity_field: str,
                     storage: str, radar_topic: str = RADAR_TOPIC, radar_frame: str = 'radar',
                     extra_radars: Sequence[RadarStream] = (),
-                    fix_index: np.ndarray | None = None) -> int:
+                    fix_index: np.ndarray | None = None,
+                    fix_stamps_ns: np.ndarray | None = None) -> int:
     """Write the bag; returns the number of messages.
 
     Parameters
@@ -79,6 +80,8 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
     fix_index : ndarray or None
         The GNSS epochs published as NavSatFix (``fix_receive_ns`` has one receipt per
         entry); None: every epoch.
+    fix_stamps_ns : ndarray or None
+        Header stamps of the NavSatFix of each GNSS epoch; None: ``gnss_stamps_ns``.
     odom_receive_ns : ndarray or None
         None leaves the Odometry topic out.
     radar_topic, radar_frame : str
@@ -103,6 +106,7 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
                                                    np.int64), np.arange(r.stamps_ns.size)])
             for k, r in enumerate(radars)]
     fixes = np.arange(fix_receive_ns.size) if fix_index is None else np.asarray(fix_index)
+    fix_stamps = gnss_stamps_ns if fix_stamps_ns is None else fix_stamps_ns
     keys.append(np.column_stack([fix_receive_ns, np.ones(fix_receive_ns.size, np.int64),
                                  fixes]))
     if odom_receive_ns is not None:
@@ -125,7 +129,7 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
                 yield radar.topic, msgs.POINTCLOUD2, receive, msg
             elif topic == 1:
                 msg = msgs.encode_navsatfix(
-                    store, int(gnss_stamps_ns[i]), 'gnss', float(gnss.lat_deg[i]),
+                    store, int(fix_stamps[i]), 'gnss', float(gnss.lat_deg[i]),
                     float(gnss.lon_deg[i]), float(gnss.alt_m[i]), int(gnss.status[i]),
                     0.02 if gnss.status[i] >= 0 else 5.0)
                 yield NAVSAT_TOPIC, msgs.NAVSATFIX, receive, msg
