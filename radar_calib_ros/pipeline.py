@@ -601,8 +601,10 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      'taken as parts of one scan (a driver that publishes a scan in pieces).')
     permille = recording.counters.get('odometry_speed_scale_permille')
     if permille:
+        # with vehicle.odom_is_utm and no fixes, the Odometry's own positions
+        source = 'fixes' if recording.counters.get('fixes') else 'Odometry\'s positions'
         notes.append(f'The Odometry twist speed is {-permille / 10:.1f} % off the speed of the '
-                     'fixes on straight driving and was rescaled to them (1 % would tilt the '
+                     f'{source} on straight driving and was rescaled to them (1 % would tilt the '
                      'fitted pitch by about half a degree); check the odometry\'s scale.')
     if recording.counters.get('odometry_twist_in_parent_frame'):
         notes.append('The Odometry twist is in the parent (ENU) frame and was read so; REP-105 '

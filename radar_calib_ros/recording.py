@@ -533,6 +533,7 @@ class RecordingBuilder:
             stamps, unique = np.unique(np.array([o.stamp_ns for o in odoms], np.int64),
                                        return_index=True)
             utm = np.array([odoms[i].position_m for i in unique], np.float64)
+            _check_utm(utm, cfg.world.epsg)
             probe = LocalFrame(0.0, 0.0, cfg.world.epsg)
             lat0, lon0, _ = probe.utm_to_geodetic(utm[:1])
             frame = LocalFrame(float(lat0[0]), float(lon0[0]), cfg.world.epsg)
@@ -591,7 +592,17 @@ class RecordingBuilder:
             yaw, offset = _checked_orientation(t, coarse, measured, positions, yaw_true_at, lat,
                                                lon, frame, cfg.vehicle.min_heading_speed,
                                                self.counters, vx)
-            if not _tilted(q):
+            tilt_known = _tilted(q)
+            if tilt_known and self.counters.get('odometry_orientation_replaced'):
+                # An orientation that does not describe the travel (an INS's ECEF attitude,
+                # another frame's) does not describe the tilt either: turned by it, the twist
+                # lost 13 % of its speed into the vertical and was 'rescaled' (a tenth probe:
+                # 2.8 m and 5 deg off). The body twist is taken as level, graded by the fixes.
+                tilt_known = False
+                v_level = v_body
+                vx = np.interp(t, to, v_level[:, 0])
+                vy = np.interp(t, to, v_level[:, 1])
+            if not tilt_known:
                 # a heading-only orientation on a grade: the fixes' climb tells the tilt
                 level = _grade_cosine(t, positions, np.hypot(vx, vy), self._fix_sigma())
                 vx, vy = vx * level, vy * level
@@ -771,6 +782,27 @@ def _odometry_between_fixes(t: F64, positions: F64, yaw: F64, velocities: F64, y
               'path there', float(np.median(interval)), added.size)
     return (times[keep], out_positions[keep], out_yaw[keep], out_velocities[keep],
             out_rate[keep])
+
+
+#: Where UTM coordinates can lie [m]: eastings within a zone (166-834 km at the equator,
+#: the zone's overlap allowed for), northings from the equator (or its false northing).
+_UTM_EASTING_M = (100_000.0, 900_000.0)
+_UTM_NORTHING_M = (0.0, 10_000_000.0)
+
+
+def _check_utm(utm: F64, epsg: int) -> None:
+    """Raise ConfigError when Odometry positions taken as UTM (``vehicle.odom_is_utm``)
+    cannot be: a local map frame's metres (Autoware's map is one MGRS grid square's, 0-100
+    km) were placed 5000 km off at exit 0 with an 8 cm sigma (a tenth probe)."""
+    east, north = np.median(utm[:, 0]), np.median(utm[:, 1])
+    if not (_UTM_EASTING_M[0] <= east <= _UTM_EASTING_M[1]
+            and _UTM_NORTHING_M[0] <= north <= _UTM_NORTHING_M[1]):
+        raise ConfigError(
+            f'vehicle.odom_is_utm: the Odometry positions (median E {east:.1f} m, N '
+            f'{north:.1f} m) cannot be UTM coordinates of EPSG:{epsg} (eastings lie within '
+            '100-900 km, northings within 0-10 000 km): they are in a local map frame (an '
+            'MGRS grid square\'s, as Autoware\'s map is?). Record the NavSatFix, or publish '
+            'the Odometry in UTM.')
 
 
 def _odom_sample(values: tuple[float, ...]) -> OdomSample:
@@ -1250,7 +1282,7 @@ def _checked_twist(t: F64, positions: F64, measured: F64, coarse: F64, twist_wor
         scale = _speed_scale(t, positions, twist_world, moving, yaw_rate)
         if scale != 1.0:
             counters['odometry_speed_scale_permille'] = int(round(1000.0 * (scale - 1.0)))
-            _LOG.warning('the Odometry twist speed is %.1f %% off the fixes\' on straight '
+            _LOG.warning('the Odometry twist speed is %.1f %% off the positions\' on straight '
                          'driving: rescaled to them', 100.0 * (1.0 / scale - 1.0))
         return np.column_stack([scale * twist_world, measured[:, 2]])
     if enu <= tolerance:

@@ -331,6 +331,43 @@ def test_odometry_positions_in_utm() -> None:
     rec = builder.build()
     np.testing.assert_allclose(rec.vehicle.positions_m, local, atol=1e-6)
     assert rec.frame.epsg == 32632
+    # a local map frame's metres (Autoware's MGRS grid square) are no UTM: refused by name
+    builder = RecordingBuilder(config)
+    _one_frame(builder)
+    for i in range(11):
+        builder.add_odometry(_odom(T0 + i * 10**8, 0.4, position=(295.8 + 5 * i, 31525.6, 0)))
+    with pytest.raises(ConfigError, match=r'median E 3\d\d.\d m, N 31525.6 m\) cannot be UTM '
+                       'coordinates of EPSG:32632'):
+        builder.build()
+
+
+def test_a_tilted_orientation_that_is_not_the_vehicles_does_not_tilt_its_twist() -> None:
+    """An Odometry whose orientation is an INS's ECEF attitude (tilted by the latitude,
+    turned off the travel) while its body twist is right: the orientation is replaced by
+    the course over ground, and the twist is taken as level, not turned by that tilt (it
+    lost 13 % of its speed and was 'rescaled': a tenth probe 2.8 m off)."""
+    ecef_like = Rotation.from_euler('xyz', [0.0, math.radians(90.0 - LAT0), 0.3])
+
+    frame = LocalFrame.at(LAT0, LON0)
+    t = np.arange(0.0, 40.0, 0.02)
+    speed = 12.0 + 2.0 * np.sin(2 * np.pi * t / 20.0)
+    local = np.column_stack([np.cumsum(speed) * 0.02, np.zeros_like(t), np.zeros_like(t)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i, ti in enumerate(t):
+        stamp = T0 + int(round(ti * 1e9))
+        q = (ecef_like * Rotation.from_euler('z', 0.01 * i)).as_quat()
+        builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2, (0.02, 0.03)))
+        builder.add_odometry(OdomSample(stamp, (0.0, 0.0, 0.0), tuple(q), (speed[i], 0.0, 0.0),
+                                        0.0))
+    rec = builder.build()
+    assert rec.counters['odometry_orientation_replaced'] == 1
+    assert 'odometry_speed_scale_permille' not in rec.counters
+    assert 'odometry_twist_replaced' not in rec.counters
+    inner = (t > 2.0) & (t < 38.0)
+    np.testing.assert_allclose(np.hypot(*rec.vehicle.velocities_mps[inner, :2].T), speed[inner],
+                               rtol=0.01)
 
 
 def test_drop_before_and_clear() -> None:
