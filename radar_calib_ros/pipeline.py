@@ -606,6 +606,9 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
         notes.append(f'The Odometry twist speed is {-permille / 10:.1f} % off the speed of the '
                      f'{source} on straight driving and was rescaled to them (1 % would tilt the '
                      'fitted pitch by about half a degree); check the odometry\'s scale.')
+    if recording.counters.get('odometry_twist_kmh'):
+        notes.append('The Odometry twist is 3.6 times the vehicle\'s speed: it is in km/h, not '
+                     'the m/s REP-103 asks for, and was read so. Check the driver\'s units.')
     if recording.counters.get('odometry_twist_in_parent_frame'):
         notes.append('The Odometry twist is in the parent (ENU) frame and was read so; REP-105 '
                      'puts it in child_frame_id.')

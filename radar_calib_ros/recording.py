@@ -1247,6 +1247,22 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
     return lag
 
 
+#: A twist this many times the positions' speed is in km/h, give or take the tolerance.
+_KMH_PER_MPS = 3.6
+_KMH_TOLERANCE = 0.25
+
+
+def _speed_ratio(twist_world: F64, velocities: F64, moving: np.ndarray) -> float:
+    """Median ratio of a world twist's speed to the positions' ``velocities`` (over +-0.2 s:
+    the +-1 s ones cut the corners of a turn) where moving (0 if never)."""
+    speed = np.hypot(velocities[:, 0], velocities[:, 1])
+    moving = moving & (speed > 0.0)
+    if not moving.any():
+        return 0.0
+    return float(np.median(np.hypot(twist_world[moving, 0], twist_world[moving, 1])
+                           / speed[moving]))
+
+
 def _twist_mismatch(twist_world: F64, coarse: F64) -> float:
     """Median distance of a world twist from the positions' velocities where moving."""
     moving = np.hypot(coarse[:, 0], coarse[:, 1]) > _TWIST_CHECK_SPEED_MPS
@@ -1285,6 +1301,15 @@ def _checked_twist(t: F64, positions: F64, measured: F64, coarse: F64, twist_wor
             _LOG.warning('the Odometry twist speed is %.1f %% off the positions\' on straight '
                          'driving: rescaled to them', 100.0 * (1.0 / scale - 1.0))
         return np.column_stack([scale * twist_world, measured[:, 2]])
+    kmh = twist_world / _KMH_PER_MPS
+    if (abs(_speed_ratio(twist_world, measured[:, :2], moving) - _KMH_PER_MPS) <= _KMH_TOLERANCE
+            and _twist_mismatch(kmh, coarse) <= tolerance):
+        # a driver that writes km/h (a tenth probe's): 3.6 times the fixes' speed, and
+        # right once divided; better than the positions' differences, and said
+        counters['odometry_twist_kmh'] = 1
+        _LOG.warning('the Odometry twist is 3.6 times the positions\' speed: read as km/h')
+        scale = _speed_scale(t, positions, kmh, moving, yaw_rate)
+        return np.column_stack([scale * kmh, measured[:, 2]])
     if enu <= tolerance:
         counters['odometry_twist_in_parent_frame'] = 1
         _LOG.warning('the Odometry twist describes the vehicle\'s motion only read in the '

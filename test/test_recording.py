@@ -380,12 +380,12 @@ def test_drop_before_and_clear() -> None:
     assert builder.n_frames == 0 and builder.n_poses == 0 and builder.stamp_range_ns() is None
 
 
-@pytest.mark.parametrize('twist', ['body', 'zero', 'enu'])
+@pytest.mark.parametrize('twist', ['body', 'zero', 'enu', 'kmh'])
 def test_odometry_twist_checked_against_the_positions(twist: str,
                                                       caplog: pytest.LogCaptureFixture) -> None:
-    """A zero twist, or one published in the parent (ENU) frame, would turn the radar's yaw
-    through the radial-velocity fit: the positions' own motion tells, and what matches it
-    is used, with a warning."""
+    """A zero twist, one published in the parent (ENU) frame, or one in km/h would turn
+    the radar's yaw through the radial-velocity fit: the positions' own motion tells, and
+    what matches it is used (km/h divided by 3.6), with a warning."""
     builder, frame, omega = circle_builder()
     speed = 15.0
     odoms = list(builder._odoms)
@@ -395,7 +395,8 @@ def test_odometry_twist_checked_against_the_positions(twist: str,
         t = (sample.stamp_ns - T0) * 1e-9
         heading = omega * t + np.pi / 2  # local grid
         v = {'body': (speed, 0.0, 0.0), 'zero': (0.0, 0.0, 0.0),
-             'enu': (speed * math.cos(heading), speed * math.sin(heading), 0.0)}[twist]
+             'enu': (speed * math.cos(heading), speed * math.sin(heading), 0.0),
+             'kmh': (3.6 * speed, 0.0, 0.0)}[twist]
         builder.add_odometry(OdomSample(sample.stamp_ns, sample.position_m,
                                         sample.quaternion_xyzw, v, sample.yaw_rate_rps))
     with caplog.at_level('WARNING', logger='radar_calib_ros'):
@@ -408,13 +409,15 @@ def test_odometry_twist_checked_against_the_positions(twist: str,
     # central differences over +-0.2 s on a 30 m circle: a few cm/s
     assert error.max() < (0.1 if twist == 'zero' else 1e-6)
     counters = {'body': {}, 'zero': {'odometry_twist_replaced': 1},
-                'enu': {'odometry_twist_in_parent_frame': 1}}[twist]
+                'enu': {'odometry_twist_in_parent_frame': 1},
+                'kmh': {'odometry_twist_kmh': 1}}[twist]
     assert {k: v for k, v in rec.counters.items() if k.startswith('odometry_twist')} == counters
     assert ('Odometry twist' in caplog.text) == (twist != 'body')
     # and the calibration's advice names it for the user to fix at the source
     from radar_calib_ros.pipeline import _data_notes
     notes = [n for n in _data_notes(rec, []) if 'twist' in n]
-    assert len(notes) == (twist != 'body') and all('REP-105' in n for n in notes)
+    assert len(notes) == (twist != 'body')
+    assert all(('km/h' if twist == 'kmh' else 'REP-105') in n for n in notes)
 
 
 def test_a_good_twist_is_kept_under_standalone_gnss_noise() -> None:

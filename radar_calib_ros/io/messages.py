@@ -194,9 +194,15 @@ def _choose_velocity_field(table: Mapping[str, tuple[int, int]], velocity_field:
     found = _velocity_field_among(table)
     if found is not None:
         return found
+    # Autoware's radar_scan_to_pointcloud2 writes its doppler_pointcloud as x, y, z and
+    # 'intensity' holding the Doppler velocity: a guess we do not take (its amplitude
+    # cloud looks the same), but the user may know
+    hint = ("; a radar cloud from Autoware's radar_scan_to_pointcloud2 (doppler_pointcloud) "
+            "carries the radial velocity in 'intensity': if so, set radar.velocity_field: "
+            'intensity' if _field_named(table, 'intensity') is not None else '')
     raise DecodeError(f'PointCloud2 has no radial-velocity field (looked for '
                       f'{", ".join(VELOCITY_FIELD_NAMES)}; set radar.velocity_field); fields '
-                      f'found: {_fields_listing(table)}')
+                      f'found: {_fields_listing(table)}{hint}')
 
 
 def _numpy_code(name: str, datatype: int, *, float_only: bool) -> str:

@@ -307,6 +307,11 @@ def test_error_no_velocity_lists_fields(ts: Any) -> None:
     with pytest.raises(DecodeError, match=r'no radial-velocity field.*fields found: x, y, z, '
                        'rcs$'):
         m.decode_pointcloud(msg)
+    # x, y, z, intensity: Autoware's doppler_pointcloud keeps the velocity in intensity
+    autoware = hand_cloud(ts, fields[:3] + [('intensity', 12, FLOAT32)], POINTS, point_step=16)
+    with pytest.raises(DecodeError, match=r"fields found: x, y, z, intensity; a radar cloud "
+                       r"from Autoware's .* set radar.velocity_field: intensity$"):
+        m.decode_pointcloud(autoware)
     with pytest.raises(DecodeError, match=r"no velocity field 'v'.*fields found: x, y, z, rcs"):
         m.decode_pointcloud(msg, 'v')
 
