@@ -660,6 +660,14 @@ def _slow_fixes(t: F64, to: F64) -> bool:
 _TURNED_MAP_SPREAD_RAD = math.radians(3.0)
 
 
+def _dead_reckoned(times: F64, to: F64, twist: F64) -> tuple[F64, F64]:
+    """(velocity, path from the first of ``times``): the world twist (sampled at ``to``) at
+    ``times`` and its integral by trapezoids."""
+    v = np.column_stack([np.interp(times, to, twist[:, i]) for i in range(2)])
+    return v, np.vstack([np.zeros((1, 2)), np.cumsum(
+        0.5 * (v[1:] + v[:-1]) * np.diff(times)[:, None], axis=0)])
+
+
 def _odometry_heading(frame: LocalFrame, yaw_true: F64, lat: F64, lon: F64, offset: float,
                       counters: Counter[str], t: F64, to: F64, positions: F64, v_level: F64
                       ) -> F64 | None:
@@ -684,9 +692,7 @@ def _odometry_heading(frame: LocalFrame, yaw_true: F64, lat: F64, lon: F64, offs
     twist = np.column_stack([c * v_level[:, 0] - s * v_level[:, 1],
                              s * v_level[:, 0] + c * v_level[:, 1]])
     times = np.union1d(t, to[(to > t[0]) & (to < t[-1])])
-    v = np.column_stack([np.interp(times, to, twist[:, i]) for i in range(2)])
-    travelled = np.vstack([np.zeros((1, 2)), np.cumsum(
-        0.5 * (v[1:] + v[:-1]) * np.diff(times)[:, None], axis=0)])
+    _, travelled = _dead_reckoned(times, to, twist)
     reckoned = np.diff(travelled[np.searchsorted(times, t)], axis=0)
     chord = np.diff(positions[:, :2], axis=0)
     used = ((np.diff(t) <= _BRIDGED_INTERVAL_S)
@@ -737,10 +743,7 @@ def _odometry_between_fixes(t: F64, positions: F64, yaw: F64, velocities: F64, y
     order = np.argsort(times, kind='stable')
     times = times[order]
     is_fix = order < t.size
-    # twist on the merged timeline, integrated by trapezoids
-    v = np.column_stack([np.interp(times, to, twist[:, i]) for i in range(2)])
-    travelled = np.vstack([np.zeros((1, 2)), np.cumsum(
-        0.5 * (v[1:] + v[:-1]) * np.diff(times)[:, None], axis=0)])
+    v, travelled = _dead_reckoned(times, to, twist)
     misclosure = positions[:, :2] - travelled[is_fix]
     seg = np.clip(np.searchsorted(t, times, side='right') - 1, 0, t.size - 2)
     share = (times - t[seg]) / interval[seg]
