@@ -708,16 +708,26 @@ def _run_calibration(recording: Recording, config: CalibConfig,
     # The contract's v_r convention is a range rate; where the radar's is the opposite, the
     # paper's stages never noticed (they use |v_r| or compare v_r with v_r) but the final
     # fit and the detection check would be fooled: judge it on the vehicle, flip, and say so.
-    sign, n_same, n_flipped = quality.radial_velocity_sign(current, recording, config)
-    if sign < 0:
+    factor, n_same, n_other = quality.radial_velocity_sign(current, recording, config)
+    sign = 1.0 if factor > 0 else -1.0
+    if factor != 1.0:
         recording = replace(recording, targets=replace(
-            targets, radial_velocity_mps=-targets.radial_velocity_mps))
-        flip_note = (f'The radar reports radial velocities with the opposite sign (approach '
-                     f'positive): near the vehicle {n_flipped} targets match its motion so, '
-                     f'{n_same} as a range rate. They were flipped; set radar.velocity_sign '
-                     f'to {-config.radar.velocity_sign:g} to say so.')
+            targets, radial_velocity_mps=targets.radial_velocity_mps / factor))
+        if abs(factor) == 1.0:
+            flip_note = (f'The radar reports radial velocities with the opposite sign (approach '
+                         f'positive): near the vehicle {n_other} targets match its motion so, '
+                         f'{n_same} as a range rate. They were flipped; set '
+                         f'radar.velocity_sign to {-config.radar.velocity_sign:g} to say so.')
+        else:
+            approach = ', approach positive' if sign < 0 else ''
+            flip_note = (f'The radar reports radial velocities in km/h{approach}: near the '
+                         f'vehicle {n_other} targets match its motion {abs(factor):g} times '
+                         f'over, {n_same} in m/s. They were divided by {factor:g}; have the '
+                         'driver give m/s' + (f' (or set radar.velocity_sign to '
+                                              f'{-config.radar.velocity_sign:g})'
+                                              if sign < 0 else '') + '.')
         _LOG.warning('%s', flip_note)
-    corrections = [flip_note] if sign < 0 else []
+    corrections = [flip_note] if factor != 1.0 else []
     if sparse_note:
         corrections.insert(0, sparse_note)
     if clutter_note:
@@ -775,6 +785,8 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                                         config)
         report.extra['vehicle_detection_ratio'] = detection
         report.extra['radial_velocity_sign'] = sign * config.radar.velocity_sign
+        if abs(factor) != 1.0:
+            report.extra['radial_velocity_scale'] = abs(factor)
         if folding is not None:
             report.extra['radial_velocity_fold_period_mps'] = folding.period_mps
         notes = _data_notes(recording, corrections) + _clock_notes(recording, config)

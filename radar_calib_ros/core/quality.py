@@ -477,32 +477,46 @@ _SIGN_MIN_MATCHES = 20
 _SIGN_DOMINANCE = 3.0
 
 
+#: Factors a radar's radial velocities may carry against the contract's range rate in m/s:
+#: the sign (approach positive), and km/h.
+_VR_FACTORS = (-1.0, 3.6, -3.6)
+
+
 def radial_velocity_sign(extrinsics: Extrinsics, recording: Recording,
                          config: CalibConfig) -> tuple[float, int, int]:
-    """Which sign convention the radar's radial velocities follow, judged on the vehicle.
+    """Which convention the radar's radial velocities follow, judged on the vehicle: the
+    factor between them and the contract's range rate in m/s (1, -1, 3.6 or -3.6).
 
     Why: the contract's convention is positive for targets moving away (a range rate), and
     ``radar.velocity_sign`` says when a radar differs, but radars and simulators are split
-    (some report the speed towards the sensor), and a flipped sign is silent until the
-    radial-velocity fit turns the yaw and the detection check rejects a right calibration.
-    Near the vehicle's box, where the calibration of the paper's stages puts it within
-    decimetres, the radar's targets carry the vehicle's predicted radial velocity with one
-    sign or the other; the clear winner is the convention.
+    (some report the speed towards the sensor, some drivers km/h), and a wrong convention
+    is silent until the radial-velocity fit turns the yaw and the detection check rejects a
+    right calibration (a tenth probe's km/h radar: exit 1). Near the vehicle's box, where
+    the calibration of the paper's stages puts it within decimetres, the radar's targets
+    carry the vehicle's predicted radial velocity times the factor; the clear winner is
+    the convention (the tolerance scales with the factor, as the noise does).
 
     Returns
     -------
-    (sign, n_same, n_flipped): +1.0 unless clearly more targets (at least
-    ``_SIGN_MIN_MATCHES`` and ``_SIGN_DOMINANCE`` times as many) match the flipped sign,
-    and the two counts.
+    (factor, n_same, n_factor): 1.0 unless clearly more targets (at least
+    ``_SIGN_MIN_MATCHES`` and ``_SIGN_DOMINANCE`` times as many) match another factor, the
+    count matching 1 and the count matching the factor returned (0 for 1.0).
     """
     view = _vehicle_in_view(extrinsics, recording, config)
     if view is None:
         return 1.0, 0, 0
     _, _, near, measured_vr, predicted_vr = view
-    same = int(np.sum(near & (np.abs(measured_vr - predicted_vr) < _CHECK_VR_TOLERANCE_MPS)))
-    flipped = int(np.sum(near & (np.abs(measured_vr + predicted_vr) < _CHECK_VR_TOLERANCE_MPS)))
-    sign = -1.0 if flipped >= max(_SIGN_MIN_MATCHES, _SIGN_DOMINANCE * same) else 1.0
-    return sign, same, flipped
+
+    def matching(factor: float) -> int:
+        return int(np.sum(near & (np.abs(measured_vr - factor * predicted_vr)
+                                  < _CHECK_VR_TOLERANCE_MPS * abs(factor))))
+
+    same = matching(1.0)
+    counts = {factor: matching(factor) for factor in _VR_FACTORS}
+    best = max(counts, key=lambda f: counts[f])
+    if counts[best] >= max(_SIGN_MIN_MATCHES, _SIGN_DOMINANCE * same):
+        return best, same, counts[best]
+    return 1.0, same, 0
 
 
 def _radar_view(recording: Recording) -> tuple[float, float, float]:
