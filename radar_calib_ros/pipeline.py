@@ -354,9 +354,6 @@ _CLOCK_JUMP_S = 10.0
 _RECEIPT_NOTE_S = 1.0
 
 
-_ODOMETRY_LATE = 'The radar\'s stamps agree with the NavSatFix\'s as stamped'
-
-
 def _odometry_late_note(recording: Recording, fitted_offset_s: float) -> str | None:
     """The note for fixes found to lag the Odometry by L (``recording._fix_lag``) when the
     fitted clock offset is -L, not 0: the radar is on the fixes' clock, so it is rather the
@@ -372,7 +369,8 @@ def _odometry_late_note(recording: Recording, fitted_offset_s: float) -> str | N
            f'run {-late_ms:.0f} ms ahead of both (seen where the vehicle turned or changed '
            'speed): the Odometry stamped early, or the fixes and the radar both stamped late '
            '(at output)')
-    return (f'{_ODOMETRY_LATE}, and the Odometry\'s {how}. The poses were put on the '
+    return (f'The radar\'s stamps agree with the NavSatFix\'s as stamped, and the '
+            f'Odometry\'s {how}. The poses were put on the '
             f'Odometry\'s clock, so the clock offset reported ({fitted_offset_s:+.3f} s) is the '
             'radar\'s against the Odometry\'s stamps. Check how each is stamped.')
 
@@ -462,11 +460,13 @@ def _dropped(count: int, noun: str, what: Callable[[int], str], done: str) -> st
             f'{"were" if plural else "was"} {done}.')
 
 
-def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
+def _data_notes(recording: Recording, corrections: list[str],
+                fitted_offset_s: float | None = None) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
     source: ``corrections`` made on the way (a flipped radial-velocity sign, folded
     velocities), an Odometry twist that did not describe the vehicle's motion (or its
-    speed), a radar without elevation, standalone GNSS fixes."""
+    speed), a radar without elevation, standalone GNSS fixes. ``fitted_offset_s``, the
+    final fit's clock offset, tells late fixes from a late Odometry."""
     notes = list(corrections)
     apart_s = recording.counters.get('odometry_other_clock_s')
     if apart_s is not None:
@@ -570,7 +570,11 @@ def _data_notes(recording: Recording, corrections: list[str]) -> list[str]:
                      'with the radar frames they would have placed. Check the correction link, or '
                      'drive those passes again.')
     lag_ms = recording.counters.get('fix_lag_ms')
-    if lag_ms and not any(note.startswith(_ODOMETRY_LATE) for note in corrections):
+    late = (_odometry_late_note(recording, fitted_offset_s) if fitted_offset_s is not None
+            else None)
+    if late is not None:
+        notes.append(late)
+    elif lag_ms:
         notes.append(f'The NavSatFix stamps lag the Odometry\'s by {lag_ms} ms (seen where the '
                      'vehicle turned or changed speed): each fix was taken at its stamp minus '
                      'that. Check how the GNSS driver stamps its fixes (at the epoch, not at '
@@ -708,7 +712,7 @@ def _run_calibration(recording: Recording, config: CalibConfig,
     # The contract's v_r convention is a range rate; where the radar's is the opposite, the
     # paper's stages never noticed (they use |v_r| or compare v_r with v_r) but the final
     # fit and the detection check would be fooled: judge it on the vehicle, flip, and say so.
-    factor, n_same, n_other = quality.radial_velocity_sign(current, recording, config)
+    factor, n_same, n_other = quality.radial_velocity_convention(current, recording, config)
     sign = 1.0 if factor > 0 else -1.0
     if factor != 1.0:
         recording = replace(recording, targets=replace(
@@ -760,10 +764,10 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                 'sync.time_offset if the clocks are known to differ, or drive through the '
                 'view with a stop or a turn to measure it.')
         max_off = config.sync.max_time_offset
-        odometry_late = _odometry_late_note(recording, current.time_offset_s)
-        if odometry_late is not None:
-            corrections.append(odometry_late)
-        elif config.sync.estimate_time_offset and abs(current.time_offset_s) > max_off > 0:
+        # an offset beyond the bound that a late Odometry explains is named as that
+        # (``_data_notes``), not as poses that could not be placed in time
+        if (config.sync.estimate_time_offset and abs(current.time_offset_s) > max_off > 0
+                and _odometry_late_note(recording, current.time_offset_s) is None):
             # The bound is a soft prior in the fit: an estimate beyond it means the vehicle
             # could not be placed in time (a fifth probe's 1 Hz fixes: -0.42 s, truth 0).
             corrections.append(
@@ -789,7 +793,9 @@ def _run_calibration(recording: Recording, config: CalibConfig,
             report.extra['radial_velocity_scale'] = abs(factor)
         if folding is not None:
             report.extra['radial_velocity_fold_period_mps'] = folding.period_mps
-        notes = _data_notes(recording, corrections) + _clock_notes(recording, config)
+        notes = _data_notes(recording, corrections,
+                            current.time_offset_s if refinement is not None else None
+                            ) + _clock_notes(recording, config)
         if notes:
             # only when there are some: an empty list in result.yaml has no parameter type,
             # and a node declaring its parameters from the file would refuse it

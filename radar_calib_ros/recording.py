@@ -18,7 +18,7 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.core._angles import wrap_angle
+from radar_calib_ros.core._angles import circular_mean, wrap_angle
 from radar_calib_ros.errors import ConfigError, InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.types import (
@@ -606,15 +606,13 @@ class RecordingBuilder:
                 # a heading-only orientation on a grade: the fixes' climb tells the tilt
                 level = _grade_cosine(t, positions, np.hypot(vx, vy), self._fix_sigma())
                 vx, vy = vx * level, vy * level
-            c, s = np.cos(yaw), np.sin(yaw)
             yaw_rate = np.interp(t, to, rate)
-            twist_world = np.column_stack([c * vx - s * vy, s * vx + c * vy])
+            twist_world = _turned(np.column_stack([vx, vy]), yaw)
             twist_turn = 0.0
             if offset:
                 # an INS turned on its mount gives its twist in its own frame too: then the
                 # heading as given turns it into the world, not the corrected one
-                c2, s2 = np.cos(yaw + offset), np.sin(yaw + offset)
-                own_frame = np.column_stack([c2 * vx - s2 * vy, s2 * vx + c2 * vy])
+                own_frame = _turned(np.column_stack([vx, vy]), yaw + offset)
                 if _twist_mismatch(own_frame, coarse) < _twist_mismatch(twist_world, coarse):
                     twist_world, twist_turn = own_frame, offset
             velocities = _checked_twist(t, positions, measured, coarse, twist_world,
@@ -688,9 +686,7 @@ def _odometry_heading(frame: LocalFrame, yaw_true: F64, lat: F64, lon: F64, offs
     # the turn of the map frame: between consecutive fixes, the direction of their chord
     # against that of the twist integrated with the heading as given (exact for any path;
     # the course over ground at slow fixes is not the heading where the curvature changes)
-    c, s = np.cos(local), np.sin(local)
-    twist = np.column_stack([c * v_level[:, 0] - s * v_level[:, 1],
-                             s * v_level[:, 0] + c * v_level[:, 1]])
+    twist = _turned(v_level, local)
     times = np.union1d(t, to[(to > t[0]) & (to < t[-1])])
     _, travelled = _dead_reckoned(times, to, twist)
     reckoned = np.diff(travelled[np.searchsorted(times, t)], axis=0)
@@ -701,7 +697,7 @@ def _odometry_heading(frame: LocalFrame, yaw_true: F64, lat: F64, lon: F64, offs
         return None
     turn = wrap_angle(np.arctan2(reckoned[used, 1], reckoned[used, 0])
                       - np.arctan2(chord[used, 1], chord[used, 0]))
-    offset = float(np.angle(np.mean(np.exp(1j * turn))))
+    offset = float(circular_mean(turn))
     if float(np.median(np.abs(wrap_angle(turn - offset)))) > _TURNED_MAP_SPREAD_RAD:
         return None
     return local - offset
@@ -729,9 +725,7 @@ def _odometry_between_fixes(t: F64, positions: F64, yaw: F64, velocities: F64, y
     if counters.get('odometry_twist_in_parent_frame'):
         twist = v_level[:, :2]
     else:
-        c, s = np.cos(heading + twist_turn), np.sin(heading + twist_turn)
-        twist = np.column_stack([c * v_level[:, 0] - s * v_level[:, 1],
-                                 s * v_level[:, 0] + c * v_level[:, 1]])
+        twist = _turned(v_level, heading + twist_turn)
     interval = np.diff(t)
     k = np.searchsorted(t, to, side='right') - 1
     inside = (k >= 0) & (k < t.size - 1)
@@ -806,6 +800,15 @@ def _check_utm(utm: F64, epsg: int) -> None:
             '100-900 km, northings within 0-10 000 km): they are in a local map frame (an '
             'MGRS grid square\'s, as Autoware\'s map is?). Record the NavSatFix, or publish '
             'the Odometry in UTM.')
+
+
+def _turned(vectors: F64, angle_rad: F64 | float) -> F64:
+    """(n, 2): the horizontal part of ``vectors`` (n, >=2) turned counter-clockwise by
+    ``angle_rad`` (one angle, or one per row): a body-frame twist into the world by the
+    heading."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.column_stack([c * vectors[:, 0] - s * vectors[:, 1],
+                            s * vectors[:, 0] + c * vectors[:, 1]])
 
 
 def _odom_sample(values: tuple[float, ...]) -> OdomSample:
@@ -1193,9 +1196,7 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
     """
     if t.size < 50 or to.size < 50:
         return 0.0
-    c, s = np.cos(yaw), np.sin(yaw)
-    v_odom = np.column_stack([c * v_level[:, 0] - s * v_level[:, 1],
-                              s * v_level[:, 0] + c * v_level[:, 1]])
+    v_odom = _turned(v_level, yaw)
     margin = _FIX_LAG_MAX_S + 0.2
     use = ((np.hypot(v_fix[:, 0], v_fix[:, 1]) > _TWIST_CHECK_SPEED_MPS)
            & (t - margin > to[0]) & (t + margin < to[-1]))
@@ -1212,8 +1213,7 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
         # two are one), and what is left to the lag is then only what the turn cannot take
         angle = math.atan2(float(np.sum(v[:, 0] * vu[:, 1] - v[:, 1] * vu[:, 0])),
                            float(np.sum(v[:, 0] * vu[:, 0] + v[:, 1] * vu[:, 1])))
-        ca, sa = math.cos(angle), math.sin(angle)
-        return np.column_stack([ca * v[:, 0] - sa * v[:, 1], sa * v[:, 0] + ca * v[:, 1]])
+        return _turned(v, angle)
 
     lags = np.arange(-_FIX_LAG_MAX_S, _FIX_LAG_MAX_S + 1e-9, _FIX_LAG_STEP_S)
     cost = np.array([np.mean((vu - turned(odom_at(tu - lag))) ** 2) for lag in lags])

@@ -482,8 +482,8 @@ _SIGN_DOMINANCE = 3.0
 _VR_FACTORS = (-1.0, 3.6, -3.6)
 
 
-def radial_velocity_sign(extrinsics: Extrinsics, recording: Recording,
-                         config: CalibConfig) -> tuple[float, int, int]:
+def radial_velocity_convention(extrinsics: Extrinsics, recording: Recording,
+                               config: CalibConfig) -> tuple[float, int, int]:
     """Which convention the radar's radial velocities follow, judged on the vehicle: the
     factor between them and the contract's range rate in m/s (1, -1, 3.6 or -3.6).
 

@@ -17,8 +17,8 @@ reported velocity confined to an interval of that width, is the fold (wheel micr
 and other road users spread their differences instead); the vehicle's targets are then
 unfolded by its motion: the multiple of P that brings each nearest to its prediction.
 
-Runs after :func:`quality.radial_velocity_sign` (a flipped sign gives differences of twice
-the prediction, which spread, so it must be put right first) and before the final fit.
+Runs after :func:`quality.radial_velocity_convention` (a flipped sign gives differences of
+twice the prediction, which spread, so it must be put right first) and before the final fit.
 """
 from __future__ import annotations
 

@@ -136,12 +136,12 @@ def test_radial_velocity_convention_is_judged_on_the_vehicle(factor: float) -> N
     """Targets near the vehicle carry its predicted v_r in the radar's convention: the
     opposite sign, or km/h (a tenth probe's radar, refused before), is recognised; a
     recording in the contract's convention, or without evidence, is left alone."""
-    from radar_calib_ros.core.quality import radial_velocity_sign
+    from radar_calib_ros.core.quality import radial_velocity_convention
     from refine_scene import make_scene
 
     scene = make_scene(5, time_offset_s=0.0)
     truth = Extrinsics(scene.truth.rotation, scene.truth.translation_m, 0.0)
-    found, same, other = radial_velocity_sign(truth, scene.recording, scene.config)
+    found, same, other = radial_velocity_convention(truth, scene.recording, scene.config)
     assert found == 1.0 and same > 100 and other == 0
 
     def with_vr(factor: float):  # type: ignore[no-untyped-def]
@@ -149,9 +149,9 @@ def test_radial_velocity_convention_is_judged_on_the_vehicle(factor: float) -> N
                           radial_velocity_mps=factor * scene.recording.targets.radial_velocity_mps)
         return replace(scene.recording, targets=targets)
 
-    found, same_f, other_f = radial_velocity_sign(truth, with_vr(factor), scene.config)
+    found, same_f, other_f = radial_velocity_convention(truth, with_vr(factor), scene.config)
     assert found == factor and other_f >= 0.9 * same and same_f < 0.2 * other_f
-    assert radial_velocity_sign(truth, with_vr(0.0), scene.config)[0] == 1.0
+    assert radial_velocity_convention(truth, with_vr(0.0), scene.config)[0] == 1.0
 
 
 def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None:
