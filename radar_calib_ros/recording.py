@@ -573,7 +573,14 @@ class RecordingBuilder:
             # over +-0.2 s; unchanged by a lag correction, which moves every fix alike
             measured = _position_velocities(t, positions)
             if self._fixes:
-                lag_s = _fix_lag(t, measured[:, :2], to, yaw_true, v_level)
+                against = _fix_lag(t, measured[:, :2], to, yaw_true, v_level, rate)
+                lag_s = against.lag_s
+                if against.lever_arm_m is not None:
+                    forward, left = against.lever_arm_m
+                    self.counters['fix_lever_arm_forward_cm'] = int(round(100.0 * forward))
+                    self.counters['fix_lever_arm_left_cm'] = int(round(100.0 * left))
+                    _LOG.warning('the NavSatFix positions describe a point %+.2f m forward and '
+                                 '%+.2f m left of the Odometry\'s', forward, left)
                 if lag_s:
                     # the fix stamped t shows where the vehicle was at t - lag
                     self.counters['fix_lag_ms'] = int(round(1000.0 * lag_s))
@@ -1178,61 +1185,117 @@ _FIX_LAG_MIN_S = 0.02
 _FIX_LAG_SIGMAS = 5.0
 
 
-def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
-    """Seconds by which the fixes' stamps lag the Odometry's (0.0 when the data do not
-    show one clearly).
+@dataclass(frozen=True)
+class FixAgainstOdometry:
+    """What the fixes' motion shows against the Odometry's (``_fix_lag``): the lag of their
+    stamps [s] (0.0 when not clear), and the horizontal lever arm of the fixes' point from
+    the Odometry's in the vehicle frame [m] (forward, left; None when not clear)."""
 
-    Why: a GNSS receiver that stamps a fix when it outputs it, not at its epoch, is 50-200
-    ms late, while the INS beside it is on time. The fixes then place the vehicle that
-    far behind itself along its path, an offset that turns with every pass and that no
-    radar clock offset can take up (an independent recording: 0.73 m along the boresight,
-    reported at 0.17 m, where the same data on one clock gave 0.34 m). The lag shows
-    wherever the vehicle accelerates or turns: the fixes' velocity follows the Odometry's
-    that much later. It is found on a grid of lags by least squares, refined by a parabola,
-    and taken when it is at least ``_FIX_LAG_MIN_S`` and ``_FIX_LAG_SIGMAS`` standard
-    errors (the fixes' velocities over +-0.2 s are correlated over that span, which the
-    error counts). A twist that does not describe the motion at all (zero, another frame,
-    a compass heading) shows no clear minimum and is left to ``_checked_twist``.
+    lag_s: float = 0.0
+    lever_arm_m: tuple[float, float] | None = None
+
+
+#: A lever arm between the fixes' point and the Odometry's is reported when at least this
+#: long [m] (a roof antenna above the rear axle: 1-2 m) and this many standard errors.
+_LEVER_ARM_MIN_M = 0.3
+_LEVER_ARM_SIGMAS = 5.0
+
+
+def _lever_columns(rate: F64, heading: F64) -> F64:
+    """(n, 2, 2): d(world velocity of a point)/d(lever arm forward, left) of a vehicle
+    turning at ``rate`` [rad/s] on ``heading``: omega x l, turned into the world."""
+    c, s = np.cos(heading), np.sin(heading)
+    cols = np.empty((rate.size, 2, 2))
+    cols[:, 0, 0], cols[:, 0, 1] = -rate * s, -rate * c
+    cols[:, 1, 0], cols[:, 1, 1] = rate * c, -rate * s
+    return cols
+
+
+def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
+             rate: F64 | None = None) -> FixAgainstOdometry:
+    """Seconds by which the fixes' stamps lag the Odometry's, and the lever arm between
+    the points the two describe, where the data show them clearly.
+
+    Why the lag: a GNSS receiver that stamps a fix when it outputs it, not at its epoch, is
+    50-200 ms late, while the INS beside it is on time. The fixes then place the vehicle
+    that far behind itself along its path, an offset that turns with every pass and that
+    no radar clock offset can take up (an independent recording: 0.73 m along the
+    boresight, reported at 0.17 m, where the same data on one clock gave 0.34 m). The lag
+    shows wherever the vehicle accelerates or turns: the fixes' velocity follows the
+    Odometry's that much later. It is found on a grid of lags by least squares, refined by
+    a parabola, and taken when it is at least ``_FIX_LAG_MIN_S`` and ``_FIX_LAG_SIGMAS``
+    standard errors (the fixes' velocities over +-0.2 s are correlated over that span,
+    which the error counts). A twist that does not describe the motion at all (zero,
+    another frame, a compass heading) shows no clear minimum and is left to
+    ``_checked_twist``.
+
+    Why the lever arm: a NavSatFix of the roof antenna beside an Odometry of the rear axle
+    (a tenth probe) moves faster on the outside of every turn (omega x l). Unmodelled, a
+    lever arm 1 m forward passed for a fix lag of -46 ms and was 'corrected' in time. It
+    is fitted with the lag (``rate``, the Odometry's yaw rate, makes it observable) and
+    reported: the contract takes the fixes' point as the vehicle's reference point, and
+    whether ``vehicle.*`` describes that point only the user knows.
     """
     if t.size < 50 or to.size < 50:
-        return 0.0
+        return FixAgainstOdometry()
     v_odom = _turned(v_level, yaw)
     margin = _FIX_LAG_MAX_S + 0.2
     use = ((np.hypot(v_fix[:, 0], v_fix[:, 1]) > _TWIST_CHECK_SPEED_MPS)
            & (t - margin > to[0]) & (t + margin < to[-1]))
     if int(use.sum()) < 50:
-        return 0.0
+        return FixAgainstOdometry()
     tu, vu = t[use], v_fix[use]
+    rate = np.zeros(to.size) if rate is None else rate
+    unwrapped = np.unwrap(yaw)
+    rate_hz = (tu.size - 1) / max(float(tu[-1] - tu[0]), 1e-9)
+    correlated = max(1.0, 0.4 * rate_hz)
 
     def odom_at(tq: F64) -> F64:
         return np.column_stack([np.interp(tq, to, v_odom[:, i]) for i in range(2)])
 
-    def turned(v: F64) -> F64:
-        # the Odometry's velocity turned by the angle that fits the fixes' best: an INS
-        # heading offset (``_heading_offset``) must not pass for a lag (on a steady turn the
-        # two are one), and what is left to the lag is then only what the turn cannot take
+    def matched_at(lag: float) -> tuple[F64, F64, F64]:
+        """The Odometry's velocity at the fixes' times minus ``lag``, turned by the angle
+        that fits the fixes' best (an INS heading offset, ``_heading_offset``, must not
+        pass for a lag: on a steady turn the two are one), plus the lever arm that fits
+        best; also the lever arm and its (2, 2) normal matrix."""
+        v = odom_at(tu - lag)
         angle = math.atan2(float(np.sum(v[:, 0] * vu[:, 1] - v[:, 1] * vu[:, 0])),
                            float(np.sum(v[:, 0] * vu[:, 0] + v[:, 1] * vu[:, 1])))
-        return _turned(v, angle)
+        v = _turned(v, angle)
+        cols = _lever_columns(np.interp(tu - lag, to, rate),
+                              np.interp(tu - lag, to, unwrapped) + angle)
+        normal = np.einsum('nki,nkj->ij', cols, cols)
+        if np.linalg.cond(normal) > 1e8:
+            return v, np.zeros(2), normal
+        arm = np.linalg.solve(normal, np.einsum('nki,nk->i', cols, vu - v))
+        return v + cols @ arm, arm, normal
 
     lags = np.arange(-_FIX_LAG_MAX_S, _FIX_LAG_MAX_S + 1e-9, _FIX_LAG_STEP_S)
-    cost = np.array([np.mean((vu - turned(odom_at(tu - lag))) ** 2) for lag in lags])
+    cost = np.array([np.mean((vu - matched_at(lag)[0]) ** 2) for lag in lags])
     k = int(np.argmin(cost))
     speed = float(np.median(np.hypot(vu[:, 0], vu[:, 1])))
     tolerance = max(_TWIST_TOLERANCE_MPS, _TWIST_TOLERANCE_FRACTION * speed)
     if k in (0, lags.size - 1) or cost[k] > tolerance ** 2:
-        return 0.0
+        return FixAgainstOdometry()
     curvature = cost[k - 1] - 2.0 * cost[k] + cost[k + 1]
     if curvature <= 0.0:
-        return 0.0
+        return FixAgainstOdometry()
     lag = float(lags[k] + 0.5 * _FIX_LAG_STEP_S * (cost[k - 1] - cost[k + 1]) / curvature)
+    matched, arm, normal = matched_at(lag)
+    residual = vu - matched
+    variance = float(np.mean(residual ** 2))
+    lever_arm = None
+    if np.linalg.cond(normal) <= 1e8:
+        arm_se = np.sqrt(np.diag(np.linalg.inv(normal)) * variance * correlated)
+        length = float(np.hypot(*arm))
+        if length >= _LEVER_ARM_MIN_M and length >= _LEVER_ARM_SIGMAS * float(
+                np.hypot(*arm_se)):
+            lever_arm = (float(arm[0]), float(arm[1]))
+        _LOG.debug('lever arm of the fixes from the Odometry %s +- %s m', np.round(arm, 3),
+                   np.round(arm_se, 3))
     # standard error of a one-parameter least squares: residual variance over the summed
     # squared sensitivity (the Odometry's acceleration), with samples 0.4 s apart independent
-    matched = turned(odom_at(tu - lag))
     acc = np.column_stack([np.gradient(matched[:, i], tu) for i in range(2)])
-    residual = vu - matched
-    rate_hz = (tu.size - 1) / max(float(tu[-1] - tu[0]), 1e-9)
-    correlated = max(1.0, 0.4 * rate_hz)
     # the part of the lag's sensitivity that the turn's angle cannot take up: on a steady
     # circle the acceleration lies along the turn's (perpendicular to the velocity) and a
     # lag says nothing
@@ -1240,14 +1303,14 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64) -> float:
     along_turn = float(np.sum(acc * perp)) ** 2 / max(float(np.sum(perp ** 2)), 1e-12)
     information = max(float(np.sum(acc ** 2)) - along_turn, 0.0) / correlated
     if information <= 0.0:
-        return 0.0
-    se = math.sqrt(float(np.mean(residual ** 2)) / information)
+        return FixAgainstOdometry(0.0, lever_arm)
+    se = math.sqrt(variance / information)
     if abs(lag) < _FIX_LAG_MIN_S or abs(lag) < _FIX_LAG_SIGMAS * se:
         _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms: not taken', 1e3 * lag,
                    1e3 * se)
-        return 0.0
+        return FixAgainstOdometry(0.0, lever_arm)
     _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms', 1e3 * lag, 1e3 * se)
-    return lag
+    return FixAgainstOdometry(lag, lever_arm)
 
 
 #: A twist this many times the positions' speed is in km/h, give or take the tolerance.

@@ -105,6 +105,7 @@ def test_fixes_stamped_late_against_the_odometry_are_put_back_in_time(
         builder.add_odometry(_odom(stamp, yaw_true[i], speed[i], rate[i]))
     rec = builder.build()
     notes = ' '.join(_data_notes(rec, []))
+    assert 'fix_lever_arm_forward_cm' not in rec.counters and 'lever arm' not in notes
     if lag_ms == 0:
         assert 'fix_lag_ms' not in rec.counters and 'lag the Odometry' not in notes
         return
@@ -117,6 +118,45 @@ def test_fixes_stamped_late_against_the_odometry_are_put_back_in_time(
     err = np.hypot(*(rec.vehicle.positions_m[inner, :2] - rec.vehicle.positions_m[0, :2]
                      - (truth[inner] - truth[0])).T)
     assert np.median(err) < 0.1
+
+
+@pytest.mark.parametrize('forward_m, left_m, lag_ms',
+                         [(1.0, 0.0, 0), (1.2, -0.4, 0), (-0.8, 0.3, 100)])
+def test_fixes_of_another_point_than_the_odometrys_are_named_not_taken_for_a_lag(
+        forward_m: float, left_m: float, lag_ms: int) -> None:
+    """A roof antenna's NavSatFix beside an Odometry of the rear axle: in every turn the
+    antenna moves faster on the outside (omega x l), which a tenth probe's recording had
+    read as a -46 ms fix lag and 'corrected' in time. The lever arm is found with the lag
+    (each on its own) and named in a note."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    frame = LocalFrame.at(LAT0, LON0)
+    t, speed, yaw, rate, xy = _weaving_drive(0.05, 0.6, 20.0)
+    truth_at = t - lag_ms / 1000.0
+    yaw_at = np.interp(truth_at, t, yaw)
+    fix_xy = np.column_stack([np.interp(truth_at, t, xy[:, i]) for i in range(2)])
+    fix_xy += np.column_stack([forward_m * np.cos(yaw_at) - left_m * np.sin(yaw_at),
+                               forward_m * np.sin(yaw_at) + left_m * np.cos(yaw_at)])
+    lat, lon, alt = frame.local_to_geodetic(np.column_stack([fix_xy, np.zeros_like(t)]))
+    yaw_true = yaw + frame.local_convergence_rad(lat, lon)
+    rng = np.random.default_rng(5)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i, ti in enumerate(t):
+        stamp = T0 + int(round(ti * 1e9))
+        noisy = frame.local_to_geodetic(np.array([[*fix_xy[i] + rng.normal(0, 0.02, 2), 0.0]]))
+        builder.add_fix(FixSample(stamp, float(noisy[0][0]), float(noisy[1][0]),
+                                  float(noisy[2][0]), 2, (0.02, 0.03)))
+        builder.add_odometry(_odom(stamp, yaw_true[i], speed[i], rate[i]))
+    rec = builder.build()
+    assert rec.counters['fix_lever_arm_forward_cm'] == pytest.approx(100 * forward_m, abs=5)
+    assert rec.counters['fix_lever_arm_left_cm'] == pytest.approx(100 * left_m, abs=5)
+    assert rec.counters.get('fix_lag_ms', 0) == pytest.approx(lag_ms, abs=5)
+    notes = ' '.join(_data_notes(rec, []))
+    ahead = 'ahead of' if forward_m > 0 else 'behind'
+    found_m = abs(rec.counters['fix_lever_arm_forward_cm']) / 100
+    assert f'describe a point {found_m:.2f} m {ahead}' in notes
+    assert 'lever arm' in notes
 
 
 @pytest.mark.parametrize('convention', ['compass', 'identity'])
