@@ -383,7 +383,7 @@ def _fix_grade_failure_note(recording: Recording) -> list[str]:
     if grade == 'rtk' or not recording.counters.get('fixes'):
         return []
     what = 'standalone GNSS (NavSatFix status 0)' if grade == 'standalone' else (
-        'SBAS or DGPS (NavSatFix status 1)')
+        'SBAS, DGPS or RTK float (NavSatFix status 1)')
     return [f'The vehicle\'s fixes are {what}, about {_length(recording.pose_sigma_m[0])} '
             '(1 sigma) horizontally: errors that move each pass\'s track of the vehicle '
             'apart by as much, so the passes seldom agree and no result could be better '
@@ -460,6 +460,11 @@ def _dropped(count: int, noun: str, what: Callable[[int], str], done: str) -> st
             f'{"were" if plural else "was"} {done}.')
 
 
+#: A horizontal 1-sigma [m] no RTK fix declares: from it on, the fixes' covariance or
+#: their status is wrong (RTK fixed declares 1-5 cm, float a decimetre or two).
+_IMPLAUSIBLE_RTK_SIGMA_M = 0.5
+
+
 def _data_notes(recording: Recording, corrections: list[str],
                 fitted_offset_s: float | None = None) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
@@ -527,13 +532,14 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'its altitude comes only from the radial velocities (decimetres). '
                      'Measure the tilt at the mount.')
     fixes = recording.counters.get('fixes', 0)
-    standalone = recording.counters.get('fixes_unaugmented', 0)
-    sbas = recording.counters.get('fixes_sbas', 0)
-    if fixes and sbas > 0.5 * fixes:
+    # shares among the fixes the track rests on (degraded ones left out are not)
+    used, standalone, sbas = recording.fix_status_counts
+    if used and sbas > 0.5 * used:
         h, v = recording.pose_sigma_m
-        notes.append(f'{100 * sbas / fixes:.0f} % of the vehicle\'s fixes are SBAS or DGPS '
-                     '(NavSatFix status 1, not RTK): decimetres to a metre, which pass into the '
-                     f'radar\'s position one to one; the reported uncertainty takes at least '
+        notes.append(f'{100 * sbas / used:.0f} % of the vehicle\'s fixes are SBAS, DGPS or RTK '
+                     'float (NavSatFix status 1, not RTK fixed): decimetres to a metre, which '
+                     'pass into the radar\'s position one to one; the reported uncertainty '
+                     f'takes at least '
                      f'{_length(h)} horizontal and {_length(v)} vertical for them, whatever '
                      'they declare. Calibrate with an RTK fix.')
     elif recording.fix_status_unreported:
@@ -545,25 +551,41 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'uncertainty. If the fixes really are standalone GNSS, the position is '
                      'off by metres and its uncertainty does not show it; have the driver '
                      'report RTK as status 2 (STATUS_GBAS_FIX).')
-    elif fixes and standalone > 0.5 * fixes:
+    elif used and standalone > 0.5 * used:
         h, v = recording.pose_sigma_m
         said = ('they declare no covariance' if recording.fix_sigma_m is None else
                 f'they declare {recording.fix_sigma_m[0]:.2f} m horizontal and '
                 f'{recording.fix_sigma_m[1]:.2f} m vertical (1 sigma)')
         declared = (f'{said}; the reported uncertainty takes {h:.1f} m horizontal and '
                     f'{v:.1f} m vertical for them')
-        notes.append(f'{100 * standalone / fixes:.0f} % of the vehicle\'s fixes are standalone '
+        notes.append(f'{100 * standalone / used:.0f} % of the vehicle\'s fixes are standalone '
                      'GNSS (NavSatFix status 0: no RTK, SBAS or GBAS); their error passes '
                      f'into the radar\'s position one to one, and {declared}. Calibrate with '
                      'an RTK fix.')
-    if recording.counters.get('fixes_degraded_dropped', 0) and not (
-            fixes and (standalone > 0.5 * fixes or sbas > 0.5 * fixes)):
+    shared = recording.counters.get('fixes_stamp_shared', 0)
+    if shared >= max(10, 0.01 * fixes):
+        notes.append(f'{shared} of the vehicle\'s {fixes} fixes share their header stamp with '
+                     'an earlier fix at another position (a receiver faster than the '
+                     'resolution of its stamps, 0.1 s?): the first received of each stamp was '
+                     'kept, the others left out. Stamp each fix with its own epoch, to the '
+                     'millisecond.')
+    declared = recording.fix_sigma_m
+    if (used and recording.fix_grade == 'rtk' and standalone <= 0.5 * used
+            and declared is not None and declared[0] >= _IMPLAUSIBLE_RTK_SIGMA_M):
+        notes.append('The vehicle\'s fixes report RTK (NavSatFix status 2) but declare '
+                     f'{_length(declared[0])} horizontal and {_length(declared[1])} vertical '
+                     '(1 sigma), far from an RTK fix\'s centimetres: a covariance written in '
+                     'cm^2 instead of m^2, a receiver\'s conservative placeholder '
+                     '(covariance type APPROXIMATED), or RTK float or DGPS reported as status 2? '
+                     'The reported uncertainty takes the declared value as it stands; if the '
+                     'fixes are RTK fixed, correct the driver\'s covariance and calibrate again.')
+    if recording.counters.get('fixes_degraded_dropped', 0) and recording.fix_grade == 'rtk':
         dropped = recording.counters['fixes_degraded_dropped']
         stretches = recording.counters.get('fixes_unaugmented_stretches', 0)
         longest_s = recording.counters.get('fixes_unaugmented_longest_ms', 0) / 1000.0
         where = (f'; standalone (NavSatFix status 0) in {stretches} stretch'
                  f'{"es" if stretches != 1 else ""}, the longest {longest_s:.0f} s'
-                 if standalone else '')
+                 if recording.counters.get('fixes_unaugmented', 0) else '')
         notes.append(f'{dropped} of the vehicle\'s {fixes} fixes ({100 * dropped / fixes:.0f} %) '
                      'had lost the RTK solution (status 0 or 1, or a declared accuracy far below '
                      f'the rest){where}: those poses, decimetres to metres off, were left out '

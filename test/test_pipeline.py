@@ -147,7 +147,8 @@ def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
     assert 'leap' not in str(err.value)
 
 
-def _recording(fix_period_s: float, radar_start_s: float = 0.0, status: int = 2) -> Any:
+def _recording(fix_period_s: float, radar_start_s: float = 0.0, status: int = 2,
+               sigma_m: tuple[float, float] | None = None) -> Any:
     from radar_calib_ros.io.geo import LocalFrame
     from radar_calib_ros.recording import RecordingBuilder
     from radar_calib_ros.types import FixSample, RadarFrame
@@ -161,7 +162,10 @@ def _recording(fix_period_s: float, radar_start_s: float = 0.0, status: int = 2)
     for k in range(int(10.0 / fix_period_s) + 1):
         t = k * fix_period_s
         lat, lon, alt = frame.local_to_geodetic(np.array([[10.0 * t, 0.0, 0.0]]))
-        builder.add_fix(FixSample(t0 + int(t * 1e9), lat[0], lon[0], alt[0], status))
+        fix = FixSample(t0 + int(t * 1e9), lat[0], lon[0], alt[0], status)
+        if sigma_m is not None:
+            fix = dataclasses.replace(fix, position_sigma_m=sigma_m)
+        builder.add_fix(fix)
     return builder.build()
 
 
@@ -182,7 +186,7 @@ def test_poses_too_sparse_or_apart_in_time_are_named() -> None:
 
 
 @pytest.mark.parametrize('status, named',
-                         [(0, 'standalone GNSS'), (1, 'SBAS or DGPS'), (2, None)])
+                         [(0, 'standalone GNSS'), (1, 'SBAS, DGPS or RTK float'), (2, None)])
 def test_a_failure_on_fixes_below_rtk_names_them(status: int, named: str | None) -> None:
     """A drive that cannot be calibrated on standalone or SBAS fixes: the failure names the
     fixes and their error besides its own reason; on RTK it does not."""
@@ -195,6 +199,25 @@ def test_a_failure_on_fixes_below_rtk_names_them(status: int, named: str | None)
     else:
         assert f"The vehicle's fixes are {named}" in str(err.value)
         assert 'Calibrate with an RTK fix' in str(err.value)
+
+
+@pytest.mark.parametrize('status, sigma_m, noted', [
+    (2, (2.0, 4.0), True), (2, (5.0, 10.0), True), (2, (0.02, 0.03), False),
+    (2, None, False), (1, (2.0, 4.0), False)])
+def test_rtk_fixes_declaring_metres_are_named(status: int, sigma_m: tuple[float, float] | None,
+                                              noted: bool) -> None:
+    """RTK fixes (status 2) whose covariance says metres (written in cm^2, or a receiver's
+    25 m^2 placeholder; a tenth probe): the uncertainty is taken as declared, and a note
+    says the two disagree; centimetres, no covariance, or an SBAS fix get no such note."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    recording = _recording(0.1, status=status, sigma_m=sigma_m)
+    notes = ' '.join(_data_notes(recording, []))
+    assert ('report RTK (NavSatFix status 2) but declare' in notes) == noted
+    if noted:
+        assert sigma_m is not None
+        assert f'declare {sigma_m[0]:.1f} m horizontal and {sigma_m[1]:.1f} m vertical' in notes
+        assert recording.pose_sigma_m == pytest.approx(sigma_m)
 
 
 def test_a_2d_radar_is_named_in_the_advice() -> None:
