@@ -296,8 +296,10 @@ def _simulate_one_radar(spec: Scenario, mount: Any, scene: Any, log: TrafficLog,
         clock_offset = float(r_clock.uniform(-0.002, 0.002))
     else:
         clock_offset = float(spec.clock_offset_s)
-    # header stamp = radar clock = GNSS time - offset, time-tagged to ~0.3 ms
-    radar_stamp_s = times - clock_offset + r_stamps.normal(0.0, 0.0003, times.size)
+    # header stamp = radar clock = GNSS time - offset, time-tagged to ~0.3 ms; a
+    # free-running clock runs fast by its drift, the offset being clock_offset mid-recording
+    drift = 1e-6 * spec.clock_drift_ppm * (times - 0.5 * duration)
+    radar_stamp_s = times - clock_offset + drift + r_stamps.normal(0.0, 0.0003, times.size)
     stamps_ns = epoch_ns + np.round(radar_stamp_s * 1e9).astype(np.int64)
     receive_ns = epoch_ns + np.round((times + r_stamps.uniform(0.025, 0.045, times.size))
                                      * 1e9).astype(np.int64)
@@ -401,6 +403,7 @@ def _truth(spec: Scenario, seed: int, model: str, duration: float, frame: LocalF
         'calibration_vehicle_skin_weight': float(skin_weight),
         'duration_s': duration,
         'time_offset_s': extrinsics.time_offset_s,
+        'clock_drift_ppm': float(spec.clock_drift_ppm),
         'radar_height_m': float(extrinsics.translation_m[2] - ground_z),
         'radar_mount_local': {
             'translation_m': [float(v) for v in extrinsics.translation_m],

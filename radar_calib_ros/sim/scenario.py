@@ -101,6 +101,9 @@ class Scenario:
     #: radar clock offset [s] (added to radar stamps gives GNSS time); None: a synchronised
     #: clock, |offset| < 2 ms drawn from the seed
     clock_offset_s: float | None = None
+    #: rate of a free-running radar clock against GNSS time [ppm]: the offset then changes
+    #: by that many microseconds a second (``clock_offset_s`` is the one at mid-recording)
+    clock_drift_ppm: float = 0.0
     point_layout: str = 'xyz'
     velocity_field: str = 'velocity'
     odometry: bool = True
@@ -170,6 +173,15 @@ _SCENARIO_LIST: tuple[Scenario, ...] = (
         JunctionSpec(arm_deg=(20.0, 110.0, 200.0, 290.0), phases=((0, 2), (1, 3))),
         RadarMount((16.0, 14.0), 6.0, 7.0, 1.0, (-20.0, -20.0)),
         clock_offset_s=0.040),
+    Scenario(
+        'drifting_clock',
+        'Graz (47.1N 15.4E): the radar stamps its scans with a free-running clock of its own, '
+        '120 ppm fast against GNSS time (72 ms over ten minutes), 25 ms behind it at '
+        'mid-recording.',
+        Site('Graz', 47.07070, 15.43950, 355.0, (0.003, -0.002)),
+        JunctionSpec(arm_deg=(5.0, 93.0, 178.0, 272.0), phases=((0, 2), (1, 3))),
+        RadarMount((-15.0, -15.5), 6.5, 8.0, -0.5, (20.0, 16.0)),
+        clock_offset_s=0.025, clock_drift_ppm=120.0),
     Scenario(
         'vehicle_never_in_view',
         'Ulm geometry, but the calibration vehicle only drives far down one arm, out of the '

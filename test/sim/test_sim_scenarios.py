@@ -51,12 +51,17 @@ def test_scenario_runs(name: str, tmp_path: Path) -> None:
     assert 4.0 - 1e-9 <= truth['radar_height_m'] <= 9.0 + 1e-9
     if spec.clock_offset_s is not None:
         assert truth['time_offset_s'] == pytest.approx(spec.clock_offset_s)
+    assert truth['clock_drift_ppm'] == spec.clock_drift_ppm
     assert abs(truth['latitude'] - spec.site.lat_deg) < 0.01
     # the truth file's UTM zone is the site's (southern sites 327xx)
     assert truth['epsg'] == (32700 if spec.site.lat_deg < 0 else 32600) + int(
         (spec.site.lon_deg + 180) // 6) + 1
     _, z = load(sim.paths.bag)
     assert z['frame_index'].size == sim.n_targets > 50 * sim.n_frames
+    # the radar's stamps run at its clock's rate against GNSS time (0.3 ms of jitter)
+    stamp_s = (z['frame_stamp_ns'] - z['frame_stamp_ns'][0]) * 1e-9
+    rate = np.polyfit(z['frame_time_s'], stamp_s - z['frame_time_s'], 1)[0]
+    assert 1e6 * rate == pytest.approx(spec.clock_drift_ppm, abs=20.0)
 
 
 def test_clock_offset_shifts_radar_stamps(tmp_path: Path) -> None:
