@@ -121,6 +121,8 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     if refinement is not None:
         extra['refinement_targets'] = int(refinement.n_targets)
         extra['refinement_passes'] = int(refinement.n_passes)
+        if 'clock_drift_ppm' in refinement.diagnostics:
+            extra['clock_drift_ppm'] = round(float(refinement.diagnostics['clock_drift_ppm']), 1)
     return QualityReport(
         inlier_ratio=paper.inlier_ratio,
         outlier_distance_m=paper.outlier_distance_m,

@@ -66,7 +66,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, stats
 from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
@@ -264,9 +264,12 @@ class _Times:
     inverse: I64
 
     @classmethod
-    def of(cls, recording: Recording, index: I64, sync_offset_s: float, t0_ns: int) -> _Times:
+    def of(cls, recording: Recording, index: I64, sync_offset_s: float, t0_ns: int,
+           drift: ClockDrift | None = None) -> _Times:
         frames, inverse = np.unique(recording.targets.frame_index[index], return_inverse=True)
         frame_t = (recording.frame_stamps_ns[frames] - t0_ns) * 1e-9 + sync_offset_s
+        if drift is not None:
+            frame_t = frame_t + drift.rate * (frame_t - drift.reference_s)
         return cls(frame_t, inverse.ravel())
 
     @property
@@ -284,6 +287,17 @@ class _Times:
 
     def valid(self, poses: _Poses, offset_s: float) -> np.ndarray:
         return poses.valid(self.frame_t + offset_s)[self.inverse]
+
+
+@dataclass(frozen=True, slots=True)
+class ClockDrift:
+    """A radar clock running at its own rate against the poses': the offset at radar time
+    t (seconds since the first pose) is tau + rate * (t - reference_s), tau the fitted
+    offset at ``reference_s``, the middle of the radar's frames."""
+
+    rate: float
+    reference_s: float
+    sigma: float
 
 
 # --- the model --------------------------------------------------------------------------
@@ -905,6 +919,39 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
     # memory-bound, and multi-threaded BLAS only spins on a busy machine (measured 10x
     # slower with 2 cores shared). One thread is as fast when idle and far faster when not.
     with threadpool_limits(limits=1, user_api='blas'):
+        refinement = _refine_checked(initial, recording, tracked, selection, config,
+                                     ground_normal, None)
+        # Where the offsets the passes show change steadily with time, the fit is run again
+        # with the radar's stamps on a clock of that rate (see ``_clock_drift``). The
+        # passes' offsets are taken at a fit that has partly followed the drift with its
+        # other parameters (the position, where the directions driven change over time), so
+        # they show less of it than there is: what they still show is added, a few times.
+        drift: ClockDrift | None = None
+        for _ in range(_DRIFT_REFITS):
+            # once a drift is found, what is left of it is estimated, not tested for again
+            more = _clock_drift(refinement.diagnostics.get('pass_time_offsets', []),
+                                refinement.diagnostics.get('drift_reference_s', 0.0),
+                                found=drift is not None)
+            if more is None or (drift is not None
+                                and abs(more.rate) < _DRIFT_SETTLED * abs(drift.rate)):
+                break
+            drift = more if drift is None else ClockDrift(drift.rate + more.rate,
+                                                          more.reference_s, more.sigma)
+            try:
+                refinement = _refine_checked(initial, recording, tracked, selection, config,
+                                             ground_normal, drift)
+            except InsufficientDataError:
+                break
+            _LOG.info('radar clock drift %.0f +- %.0f ppm: refitted', 1e6 * drift.rate,
+                      1e6 * drift.sigma)
+        return refinement
+
+
+def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
+                    selection: HypothesisSelection, config: CalibConfig,
+                    ground_normal: F64 | None, drift: ClockDrift | None) -> Refinement:
+    """``_refine`` with the model check and a 2-D radar's tilt probes (below)."""
+    if True:
         alternative = None
         if config.refine.model_check:
             # The reflection model is the largest error left, and neither jackknife sees the
@@ -923,7 +970,7 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
                 config.refine, profile_range_terms=other, model_check=False))
             try:
                 alternative = _refine(initial, recording, tracked, selection, alt_config,
-                                      None, ground_normal=ground_normal
+                                      None, ground_normal=ground_normal, drift=drift
                                       ).extrinsics.translation_m
             except InsufficientDataError:
                 alternative = None
@@ -943,18 +990,18 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
                                    float(initial.time_offset_s))
                 try:
                     tilted.append(_refine(start, recording, tracked, selection, single,
-                                          None).extrinsics.translation_m)
+                                          None, drift=drift).extrinsics.translation_m)
                 except InsufficientDataError:
                     continue
         return _refine(initial, recording, tracked, selection, config, alternative,
-                       tilted, ground_normal=ground_normal)
+                       tilted, ground_normal=ground_normal, drift=drift)
 
 
 def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             selection: HypothesisSelection, config: CalibConfig,
             alternative_translation: F64 | None,
             tilted_translations: list[F64] | None = None, *,
-            ground_normal: F64 | None = None) -> Refinement:
+            ground_normal: F64 | None = None, drift: ClockDrift | None = None) -> Refinement:
     cfg = config.refine
     t0_ns = int(recording.vehicle.stamps_ns[0])
     poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap,
@@ -962,7 +1009,10 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     candidates = np.asarray(tracked.target_index, np.int64)
     track_ids = np.asarray(tracked.track_id, np.int64)
     accepted = np.asarray(selection.accepted_track_ids, np.int64)
-    times = _Times.of(recording, candidates, config.sync.time_offset, t0_ns)
+    stamps = recording.frame_stamps_ns
+    reference_s = float((stamps[0] + (stamps[-1] - stamps[0]) // 2 - t0_ns) * 1e-9
+                        + config.sync.time_offset)
+    times = _Times.of(recording, candidates, config.sync.time_offset, t0_ns, drift)
     estimate_tau = bool(config.sync.estimate_time_offset) and config.sync.max_time_offset > 0
     est = Extrinsics(np.asarray(initial.rotation, float),
                      np.asarray(initial.translation_m, float), float(initial.time_offset_s))
@@ -1189,6 +1239,24 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             'recording) to see which holds.', *diagnostics['advice']]
     if tau_held is not None:
         diagnostics['time_offset_held_sigma_s'] = tau_held
+    elif estimate_tau:
+        diagnostics['pass_time_offsets'] = _pass_time_offsets(pc, data, est.time_offset_s)
+    diagnostics['drift_reference_s'] = reference_s
+    if drift is not None:
+        first_s = float((stamps[0] - t0_ns) * 1e-9 + config.sync.time_offset)
+        last_s = float((stamps[-1] - t0_ns) * 1e-9 + config.sync.time_offset)
+        diagnostics['clock_drift_ppm'] = 1e6 * drift.rate
+        diagnostics['clock_drift_sigma_ppm'] = 1e6 * drift.sigma
+        span = [est.time_offset_s + drift.rate * (first_s - reference_s),
+                est.time_offset_s + drift.rate * (last_s - reference_s)]
+        diagnostics['time_offset_span_s'] = span
+        diagnostics['advice'] = [
+            f'The radar\'s clock drifts {1e6 * drift.rate:+.0f} ppm against the vehicle\'s '
+            f'(+-{1e6 * drift.sigma:.0f}): its offset went from {1000 * span[0]:+.0f} ms at '
+            f'the start of the recording to {1000 * span[1]:+.0f} ms at the end, pass by '
+            'pass, and the fit followed it as a straight line (the clock offset reported is '
+            'the one at the middle). Synchronise the radar\'s clock (PTP or NTP), or stamp '
+            'its scans with a synchronised host clock.', *diagnostics['advice']]
     diagnostics.update({
         'range_slopes_m': [float(v) for v in profile[reflection.n_coefficients(harmonics):]],
         'depth_reference_range_m': model.r_ref,
@@ -1207,6 +1275,73 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                       reflection_profile=np.asarray(profile[:reflection.n_coefficients(harmonics)],
                                                     float),
                       diagnostics=diagnostics)
+
+
+def _pass_time_offsets(pc: uncertainty.PassCovariance, data: _Selected,
+                       tau: float) -> list[list[float]]:
+    """(time [s], clock offset [s], information [1/s^2]) of each pass: the one-step
+    estimate of the offset from that pass's targets alone, everything else held at the
+    joint fit (its own gradient and curvature along the offset)."""
+    t_s = data.times.t_s
+    out = []
+    for p in range(pc.n_passes):
+        m = data.pass_id == p
+        information = float(pc.hessians[p, 6, 6])
+        if not m.any() or information <= 0.0:
+            continue
+        out.append([float(np.median(t_s[m])), tau - float(pc.gradients[p, 6]) / information,
+                    information])
+    return out
+
+
+#: Clock drift: the fewest passes it is judged on, the two-sided false-alarm rate of its
+#: t-test (the offsets' scatter about the line, not their formal precision, sets its
+#: error: reflection-model errors move a pass's offset more than its noise), and the least
+#: rate worth a second fit (20 ppm: 12 ms over ten minutes, 18 cm at 15 m/s at the ends,
+#: half of which the fit's constant offset takes).
+_DRIFT_MIN_PASSES = 5
+_DRIFT_FALSE_ALARM = 0.001
+_DRIFT_MIN_RATE = 20e-6
+#: At most this many refits for a drift, stopped once what is left of it is below this
+#: fraction of the rate found.
+_DRIFT_REFITS = 3
+_DRIFT_SETTLED = 0.1
+
+
+def _clock_drift(offsets: list[list[float]], reference_s: float,
+                 found: bool = False) -> ClockDrift | None:
+    """The radar clock's drift against the poses' from the passes' clock offsets, or None
+    when they show none clearly.
+
+    Why: a radar that stamps its scans with a clock of its own (no PTP or NTP) runs
+    20-200 ppm off the GNSS time; over a twenty-minute drive 200 ppm is a quarter of a
+    second, metres at driving speed. One offset for the whole recording then fits none
+    of the passes, and where the directions driven change over time it lies along the
+    boresight (an eleventh probe: 29 cm, against 4 cm without the drift). Each pass's
+    offset is estimated alone (``_pass_time_offsets``); a straight line through them
+    (weighted by their information, its error from their scatter about it) gives the rate.
+    With ``found`` (a drift already corrected for), what is left of it is taken when it
+    stands two standard errors clear of zero.
+    """
+    if len(offsets) < _DRIFT_MIN_PASSES:
+        return None
+    t, tau, w = (np.array(v, float) for v in zip(*offsets))
+    w = w / w.sum()
+    t_mean = float(np.sum(w * t))
+    spread = float(np.sum(w * (t - t_mean) ** 2))
+    if spread <= 0.0:
+        return None
+    rate = float(np.sum(w * (t - t_mean) * (tau - np.sum(w * tau)))) / spread
+    fitted = np.sum(w * tau) + rate * (t - t_mean)
+    dof = t.size - 2
+    scatter = float(np.sum(w * (tau - fitted) ** 2)) * t.size / dof
+    sigma = math.sqrt(scatter / (spread * t.size))
+    critical = 2.0 if found else float(stats.t.ppf(1.0 - _DRIFT_FALSE_ALARM / 2.0, dof))
+    _LOG.debug('clock drift from %d passes: %.1f +- %.1f ppm (needs %.1f sigma)', t.size,
+               1e6 * rate, 1e6 * sigma, critical)
+    if abs(rate) < critical * sigma or (abs(rate) < _DRIFT_MIN_RATE and not found):
+        return None
+    return ClockDrift(rate, reference_s, sigma)
 
 
 #: Chi-square (3 degrees of freedom, 0.1 %) of the rotation difference between the halves

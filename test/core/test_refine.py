@@ -903,3 +903,47 @@ def test_drives_are_advised_for_the_views_part_of_the_uncertainty_alone(
     assert 'besides the 2.0 m of the vehicle\'s fixes' in text
     coverage = uncertainty.view_coverage(np.zeros(10), np.zeros(10), np.ones(10))
     assert not uncertainty.drive_advice(0.03, 0.05, coverage, [], 0.0, fixes_sigma_m=2.0)
+
+
+def test_a_drifting_radar_clock_is_found_from_the_passes_offsets() -> None:
+    """Passes' clock offsets on a line of -100 ppm with 2 ms of scatter: found, near the
+    truth; the same without the slope, with too few passes, or below 20 ppm: none. Once a
+    drift is found, what is left of it needs only two standard errors."""
+    rng = np.random.default_rng(4)
+    t = np.linspace(20.0, 580.0, 9)
+    noise = rng.normal(0.0, 0.002, t.size)
+
+    def offsets(rate: float, n: int = t.size) -> list[list[float]]:
+        return [[float(ti), 0.03 + rate * (ti - 300.0) + float(e), 1.0]
+                for ti, e in zip(t[:n], noise[:n])]
+
+    drift = refine._clock_drift(offsets(-100e-6), 300.0)
+    assert drift is not None and drift.reference_s == 300.0
+    assert drift.rate == pytest.approx(-100e-6, abs=3 * drift.sigma)
+    assert refine._clock_drift(offsets(0.0), 300.0) is None
+    assert refine._clock_drift(offsets(-100e-6, n=4), 300.0) is None
+    assert refine._clock_drift(offsets(-15e-6), 300.0) is None
+    small = refine._clock_drift(offsets(-15e-6), 300.0, found=True)
+    assert small is None or abs(small.rate) > 2 * small.sigma
+
+
+def test_a_radar_clock_running_fast_is_followed_and_said() -> None:
+    """The radar's stamps run 600 ppm fast (65 ms over the drive; one offset for all of it
+    fits no pass): the passes' offsets show the drift, the fit follows it, the advice
+    names it, and the offset at mid-drive is the truth's. The scene on time: no drift."""
+    scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
+    plain = _run(scene)
+    assert 'clock_drift_ppm' not in plain.diagnostics
+    assert not any('clock drifts' in a for a in plain.diagnostics['advice'])
+    stamps = scene.recording.frame_stamps_ns
+    middle = stamps[0] + (stamps[-1] - stamps[0]) // 2
+    fast = stamps + np.round(600e-6 * (stamps - middle)).astype(np.int64)
+    drifting = dataclasses.replace(scene, recording=dataclasses.replace(
+        scene.recording, frame_stamps_ns=fast))
+    ref = _run(drifting)
+    err = errors(ref.extrinsics, scene.truth)
+    assert ref.diagnostics['clock_drift_ppm'] == pytest.approx(-600.0, abs=100.0)
+    assert err['time'] < 0.005 and err['horizontal'] < 0.08, err
+    assert any('clock drifts' in a for a in ref.diagnostics['advice'])
+    first, last = ref.diagnostics['time_offset_span_s']
+    assert first - last == pytest.approx(0.065, abs=0.015)
