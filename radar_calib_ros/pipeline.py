@@ -193,7 +193,8 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
     if clutter is None:
         return ground, None
     note = (f'{100 * clutter.share:.0f} % of the moving targets did not move as road users do '
-            '(rain, snow or spray near the radar, or other clutter that moves) and tilted the '
+            '(the radar\'s false alarms, rain, snow or spray near it, or other clutter that '
+            'moves; the share is high where road users give a radar few targets) and tilted the '
             f'ground plane by {clutter.tilt_deg:.1f} deg: the plane was fitted to the road '
             'users\' tracks alone.')
     _LOG.warning('%s', note)

@@ -1776,8 +1776,12 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
     # bearings and ask for more drives).
     fixes_sigma = recording.pose_sigma_m[0]
     views_along = math.sqrt(max(sig['sigma_along_boresight_m'] ** 2 - fixes_sigma ** 2, 0.0))
+    vel = g['vel']
+    headings = [math.atan2(float(np.sum(vel[m, 1])), float(np.sum(vel[m, 0])))
+                for m in (data.pass_id == p for p in range(pc.n_passes)) if m.any()]
     advice = uncertainty.drive_advice(views_along, config.quality.max_boresight_sigma_m,
-                                      coverage, candidates, bore, nearest, fixes_sigma)
+                                      coverage, candidates, bore, nearest, fixes_sigma,
+                                      headings)
     passes = []
     i_t = slice(3, 6)
     t_target = data.times.t_s

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -353,7 +354,8 @@ class DriveCandidate:
 
 def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverage,
                  candidates: list[DriveCandidate], boresight_rad: float,
-                 nearest_m: float = 0.0, fixes_sigma_m: float = 0.0) -> list[str]:
+                 nearest_m: float = 0.0, fixes_sigma_m: float = 0.0,
+                 headings_rad: Sequence[float] = ()) -> list[str]:
     """Plain sentences naming the drive that would shrink a large along-boresight sigma.
 
     Parameters
@@ -366,6 +368,7 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     nearest_m : the nearest the vehicle was seen (the vertical view's edge) [m]
     fixes_sigma_m : the vehicle's own position error, which ``sigma_along_m`` leaves out
         and the reported uncertainty adds; named where it is above the threshold too [m]
+    headings_rad : ENU headings of the passes used
     """
     if not sigma_along_m > threshold_m:
         return []
@@ -398,12 +401,29 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     # 20-40 m: near enough for wide bearings, far enough to see the whole car; never nearer
     # than the vehicle was seen at all
     near = max(20.0, 5.0 * math.ceil(nearest_m / 5.0))
+    if headings_rad and all(abs(math.sin(h - across)) < math.sin(_CROSSING_RAD)
+                            for h in headings_rad):
+        # a side-fire radar's passes already cross its view: on a straight road each side
+        # is seen at one bearing per lane, and only another road's angle adds bearings (an
+        # eleventh probe was told to cross the view, as every pass had)
+        other = (f'drive through it heading {compass_name(boresight_rad)} or '
+                 f'{compass_name(boresight_rad + math.pi)} (towards or away from the radar)')
+        sentences.append(
+            f'Better still, where the roads allow, turn through the view about '
+            f'{near:.0f}-{near + 20.0:.0f} m from the radar, or {other}: the passes so far '
+            'all cross it, where each side of the vehicle is seen at one bearing per lane; '
+            'then calibrate again.')
+        return sentences
     sentences.append(
         f'Better still, where the roads allow, cross the view (heading '
         f'{compass_name(across)} or {compass_name(across + math.pi)}) or turn through it '
         f'about {near:.0f}-{near + 20.0:.0f} m from the radar, so the front and rear are '
         'seen from bearings far from the boresight; then calibrate again.')
     return sentences
+
+
+#: A pass heading within this angle of square to the boresight crosses the view [rad].
+_CROSSING_RAD = math.radians(25.0)
 
 
 def _join(names: list[str]) -> str:

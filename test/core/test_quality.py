@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 from calib_scene import make_scene
 
+from radar_calib_ros import metrics
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import hypotheses, quality, registration
+from radar_calib_ros.recording import interpolate_poses
 from radar_calib_ros.types import Extrinsics, Refinement
 
 
@@ -185,7 +187,9 @@ def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None
     unused = [d for d in quality.drives_through_view(scene.truth, moving, kept, scene.config)
               if d.n_targets < 20]
     assert len(unused) == 1 and unused[0].seen_share > 0.5
-    assert 'could not be told apart' in quality._unused_drives_advice(unused, 5)
+    mixed = quality._unused_drives_advice(unused, 5)
+    assert 'saw targets moving with the vehicle, but the fit left them out' in mixed
+    assert 'could not be told apart' in mixed and 'edge of the view' in mixed
 
 
 def test_a_box_far_off_the_vehicle_is_named_but_faces_only_reflections_are_not() -> None:
@@ -198,3 +202,41 @@ def test_a_box_far_off_the_vehicle_is_named_but_faces_only_reflections_are_not()
     assert any('2.4 m from it' in a and 'vehicle.length' in a for a in far)
     faces = quality._advice(8, [0.0, 180.0], sigma, 0.35, 0.16, False, CalibConfig())
     assert not any('vehicle.length' in a for a in faces)
+
+
+def test_a_box_misfit_from_targets_not_moving_with_the_vehicle_is_not_the_boxs() -> None:
+    """Spray thrown up behind the vehicle (a wet road) joins its tracks: 3 m behind it at
+    half its speed, over half its targets put delta_op beyond the box check. Those that move
+    with it fit the box, so the misfit is the spray's (named as such); moved with the same
+    speed as the vehicle, the far targets are the box's problem again."""
+    scene = make_scene(n_passes=5)
+    selection = _selection(scene)
+    truth, rec, cfg = scene.truth, scene.recording, scene.config
+    index = np.asarray(scene.tracked.target_index)[np.isin(
+        scene.tracked.track_id, selection.accepted_track_ids)]
+    stamps = rec.target_stamps_ns[index]
+    poses = interpolate_poses(rec.vehicle, stamps, cfg.sync.max_pose_gap)
+    # the scene's radial velocities made those of a rigid car
+    rays = truth.apply(rec.targets.positions_m[index]) - truth.translation_m
+    rays /= np.linalg.norm(rays, axis=1)[:, None]
+    rigid = rec.targets.radial_velocity_mps.copy()
+    rigid[index] = np.sum(poses.velocities_mps * rays, axis=1)
+    rec = replace(rec, targets=replace(rec.targets, radial_velocity_mps=rigid))
+    assert quality._misfit_not_the_vehicles(truth, rec, index, cfg) is None
+    spray = index[np.random.default_rng(1).random(index.size) < 0.55]
+    at = np.isin(index, spray)
+    behind = np.column_stack([np.cos(poses.yaw_rad[at]), np.sin(poses.yaw_rad[at]),
+                              np.zeros(at.sum())]) * -(cfg.vehicle.length + 2.0)
+    positions = rec.targets.positions_m.copy()
+    positions[spray] = truth.inverse_apply(truth.apply(positions[spray]) + behind)
+    velocities = rec.targets.radial_velocity_mps.copy()
+    velocities[spray] *= 0.5
+    sprayed = replace(rec, targets=replace(rec.targets, positions_m=positions,
+                                           radial_velocity_mps=velocities))
+    found = quality._misfit_not_the_vehicles(truth, sprayed, index, cfg)
+    paper = metrics.recording_metrics(sprayed, index, truth, cfg)
+    assert paper.inlier_ratio < 0.5 and paper.outlier_distance_m > 2.0
+    assert found is not None and 0.4 < found[0] < 0.65, found
+    assert found[1] < 0.75 * paper.outlier_distance_m
+    trailing = replace(rec, targets=replace(rec.targets, positions_m=positions))
+    assert quality._misfit_not_the_vehicles(truth, trailing, index, cfg) is None

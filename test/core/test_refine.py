@@ -700,6 +700,21 @@ def test_the_cross_the_view_range_starts_beyond_a_blind_zone() -> None:
     assert 'about 20-40 m from the radar' in text
 
 
+def test_a_side_fire_radar_is_not_told_to_cross_its_view_again() -> None:
+    """Boresight north (ENU pi/2), every pass eastbound or westbound: they all cross the
+    view already, so the advice asks for a turn or a road towards the radar instead; with
+    one pass along the boresight, crossing is still advised."""
+    coverage = uncertainty.view_coverage(np.zeros(10), np.zeros(10), np.ones(10))
+    bore = math.pi / 2.0
+    crossing = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], bore,
+                                                 headings_rad=[0.05, math.pi, -0.1]))
+    assert 'cross the view (heading' not in crossing
+    assert 'turn through the view' in crossing and 'heading north or south' in crossing
+    mixed = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], bore,
+                                              headings_rad=[0.0, math.pi / 2.0]))
+    assert 'cross the view (heading west or east)' in mixed
+
+
 def test_halves_that_disagree_beyond_the_covariance_are_flagged() -> None:
     shift = np.array([0.0, 0.0, math.radians(1.0), 0.3, 0.4, 0.0, 0.0])
     tight = np.diag([math.radians(0.1) ** 2] * 3 + [0.01] * 3 + [1e-6])
