@@ -951,50 +951,49 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
                     selection: HypothesisSelection, config: CalibConfig,
                     ground_normal: F64 | None, drift: ClockDrift | None) -> Refinement:
     """``_refine`` with the model check and a 2-D radar's tilt probes (below)."""
-    if True:
-        alternative = None
-        if config.refine.model_check:
-            # The reflection model is the largest error left, and neither jackknife sees the
-            # part every pass shares. The same fit under the other range law of the profile
-            # (depth only <-> every coefficient) shows how much the position depends on that
-            # choice; the squared difference enters the reported covariance along its
-            # direction, capped at this fit's own variance there (at most sqrt(2) wider):
-            # a difference far beyond the data's precision says the alternative, with its
-            # many more range terms, is ill-determined in that geometry (seen: 2 m apart
-            # where this fit erred by 11 cm), not that this fit is off by that much.
-            # Measured over 106 simulated ten-minute runs (with the 2 cm along-boresight
-            # term): the 2-sigma ellipse covered 97 / 100 / 82 % of the interior / mixed /
-            # skin horizontal errors without it, 97 / 100 / 97 % with it, for one more fit.
-            other = 'full' if config.refine.profile_range_terms == 'depth' else 'depth'
-            alt_config = dataclasses.replace(config, refine=dataclasses.replace(
-                config.refine, profile_range_terms=other, model_check=False))
+    alternative = None
+    if config.refine.model_check:
+        # The reflection model is the largest error left, and neither jackknife sees the
+        # part every pass shares. The same fit under the other range law of the profile
+        # (depth only <-> every coefficient) shows how much the position depends on that
+        # choice; the squared difference enters the reported covariance along its
+        # direction, capped at this fit's own variance there (at most sqrt(2) wider):
+        # a difference far beyond the data's precision says the alternative, with its
+        # many more range terms, is ill-determined in that geometry (seen: 2 m apart
+        # where this fit erred by 11 cm), not that this fit is off by that much.
+        # Measured over 106 simulated ten-minute runs (with the 2 cm along-boresight
+        # term): the 2-sigma ellipse covered 97 / 100 / 82 % of the interior / mixed /
+        # skin horizontal errors without it, 97 / 100 / 97 % with it, for one more fit.
+        other = 'full' if config.refine.profile_range_terms == 'depth' else 'depth'
+        alt_config = dataclasses.replace(config, refine=dataclasses.replace(
+            config.refine, profile_range_terms=other, model_check=False))
+        try:
+            alternative = _refine(initial, recording, tracked, selection, alt_config,
+                                  None, ground_normal=ground_normal, drift=drift
+                                  ).extrinsics.translation_m
+        except InsufficientDataError:
+            alternative = None
+    tilted: list[F64] = []
+    if not recording.has_elevation:
+        # A 2-D radar's roll and pitch are held level (nothing measures them), yet they
+        # still move its position: a tilted plane maps azimuth to bearing differently
+        # off the boresight (a fifth probe's radar pitched 7 deg: 45 cm along the
+        # boresight, reported at 18). The fit is run again with each held at a tilt, and
+        # what it moves joins the covariance for their reported uncertainty.
+        single = dataclasses.replace(config, refine=dataclasses.replace(
+            config.refine, model_check=False))
+        for axis in np.eye(3)[:2]:
+            turn = Rotation.from_rotvec(math.radians(_PLANAR_PROBE_DEG) * axis)
+            start = Extrinsics(np.asarray(initial.rotation, float) @ turn.as_matrix(),
+                               np.asarray(initial.translation_m, float),
+                               float(initial.time_offset_s))
             try:
-                alternative = _refine(initial, recording, tracked, selection, alt_config,
-                                      None, ground_normal=ground_normal, drift=drift
-                                      ).extrinsics.translation_m
+                tilted.append(_refine(start, recording, tracked, selection, single,
+                                      None, drift=drift).extrinsics.translation_m)
             except InsufficientDataError:
-                alternative = None
-        tilted: list[F64] = []
-        if not recording.has_elevation:
-            # A 2-D radar's roll and pitch are held level (nothing measures them), yet they
-            # still move its position: a tilted plane maps azimuth to bearing differently
-            # off the boresight (a fifth probe's radar pitched 7 deg: 45 cm along the
-            # boresight, reported at 18). The fit is run again with each held at a tilt, and
-            # what it moves joins the covariance for their reported uncertainty.
-            single = dataclasses.replace(config, refine=dataclasses.replace(
-                config.refine, model_check=False))
-            for axis in np.eye(3)[:2]:
-                turn = Rotation.from_rotvec(math.radians(_PLANAR_PROBE_DEG) * axis)
-                start = Extrinsics(np.asarray(initial.rotation, float) @ turn.as_matrix(),
-                                   np.asarray(initial.translation_m, float),
-                                   float(initial.time_offset_s))
-                try:
-                    tilted.append(_refine(start, recording, tracked, selection, single,
-                                          None, drift=drift).extrinsics.translation_m)
-                except InsufficientDataError:
-                    continue
-        return _refine(initial, recording, tracked, selection, config, alternative,
-                       tilted, ground_normal=ground_normal, drift=drift)
+                continue
+    return _refine(initial, recording, tracked, selection, config, alternative,
+                   tilted, ground_normal=ground_normal, drift=drift)
 
 
 def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
