@@ -1226,6 +1226,10 @@ _FIX_LAG_MAX_S = 1.2
 _FIX_LAG_STEP_S = 0.01
 _FIX_LAG_MIN_S = 0.02
 _FIX_LAG_SIGMAS = 5.0
+#: Fix velocities beyond this rate [Hz] add nothing to the lag's search (see ``_fix_lag``).
+_FIX_LAG_RATE_HZ = 10.0
+#: Grid steps between the lags searched first (see ``_fix_lag``).
+_FIX_LAG_COARSE = 4
 
 
 @dataclass(frozen=True)
@@ -1287,6 +1291,12 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
            & (t - margin > to[0]) & (t + margin < to[-1]))
     if int(use.sum()) < 50:
         return FixAgainstOdometry()
+    # Velocities over +-0.2 s are correlated over that span: every fifth of a 50 Hz drive
+    # says as much and makes the two grid searches below five times cheaper (2.4 s of a
+    # fifteen-minute recording's read otherwise)
+    use = np.flatnonzero(use)
+    use = use[::max(1, int(use.size / max(float(t[use[-1]] - t[use[0]]), 1e-9)
+                           / _FIX_LAG_RATE_HZ))]
     tu, vu = t[use], v_fix[use]
     rate = np.zeros(to.size) if rate is None else rate
     unwrapped = np.unwrap(yaw)
@@ -1319,9 +1329,28 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
 
     def best_lag(with_arm: bool) -> float | None:
         """The lag of least misfit (a parabola through the grid's best three), None without
-        a clear minimum."""
-        cost = np.array([np.mean((vu - matched_at(lag, with_arm)[0]) ** 2) for lag in lags])
+        a clear minimum. The grid is searched every ``_FIX_LAG_COARSE`` steps first, then
+        step by step around the best of those (the misfit is smooth over a tenth of a
+        second: a turn or a braking takes longer)."""
+        def misfit(lag: float) -> float:
+            return float(np.mean((vu - matched_at(lag, with_arm)[0]) ** 2))
+
+        coarse = np.arange(0, lags.size, _FIX_LAG_COARSE)
+        best = int(coarse[np.argmin([misfit(lags[i]) for i in coarse])])
+        near = np.arange(max(best - _FIX_LAG_COARSE, 0),
+                         min(best + _FIX_LAG_COARSE, lags.size - 1) + 1)
+        cost = np.full(lags.size, np.inf)
+        cost[near] = [misfit(lags[i]) for i in near]
         k = int(np.argmin(cost))
+        while 0 < k < lags.size - 1:
+            # on to the nearest local minimum should the search's edge hold the best
+            for i in (k - 1, k + 1):
+                if not np.isfinite(cost[i]):
+                    cost[i] = misfit(lags[i])
+            step = int(np.argmin(cost[k - 1:k + 2])) - 1
+            if step == 0:
+                break
+            k += step
         if k in (0, lags.size - 1) or cost[k] > tolerance ** 2:
             return None
         curvature = cost[k - 1] - 2.0 * cost[k] + cost[k + 1]
