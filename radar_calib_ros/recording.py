@@ -1306,22 +1306,25 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
     def odom_at(tq: F64) -> F64:
         return np.column_stack([np.interp(tq, to, v_odom[:, i]) for i in range(2)])
 
-    def matched_at(lag: float, with_arm: bool) -> tuple[F64, F64, F64]:
+    def matched_at(lag: float, with_arm: bool) -> tuple[F64, tuple[F64, F64] | None]:
         """The Odometry's velocity at the fixes' times minus ``lag``, turned by the angle
         that fits the fixes' best (an INS heading offset, ``_heading_offset``, must not
         pass for a lag: on a steady turn the two are one), plus (``with_arm``) the lever
-        arm that fits best; also the lever arm and its (2, 2) normal matrix."""
+        arm that fits best; also that lever arm and its (2, 2) normal matrix (None without
+        one, or where the turns do not determine it)."""
         v = odom_at(tu - lag)
         angle = math.atan2(float(np.sum(v[:, 0] * vu[:, 1] - v[:, 1] * vu[:, 0])),
                            float(np.sum(v[:, 0] * vu[:, 0] + v[:, 1] * vu[:, 1])))
         v = _turned(v, angle)
+        if not with_arm:
+            return v, None
         cols = _lever_columns(np.interp(tu - lag, to, rate),
                               np.interp(tu - lag, to, unwrapped) + angle)
         normal = np.einsum('nki,nkj->ij', cols, cols)
-        if not with_arm or np.linalg.cond(normal) > 1e8:
-            return v, np.zeros(2), normal
+        if np.linalg.cond(normal) > 1e8:
+            return v, None
         arm = np.linalg.solve(normal, np.einsum('nki,nk->i', cols, vu - v))
-        return v + cols @ arm, arm, normal
+        return v + cols @ arm, (arm, normal)
 
     lags = np.arange(-_FIX_LAG_MAX_S, _FIX_LAG_MAX_S + 1e-9, _FIX_LAG_STEP_S)
     speed = float(np.median(np.hypot(vu[:, 0], vu[:, 1])))
@@ -1360,26 +1363,25 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
 
     # with a lever arm first; where none shows, the lag alone (a free lever arm of a few
     # centimetres moved the slow_gnss scenario's lag from 118 to 127 ms; the truth is 120)
-    found = best_lag(True)
     lever_arm = None
-    if found is not None:
-        matched, arm, normal = matched_at(found, True)
-        variance = float(np.mean((vu - matched) ** 2))
-    if found is not None and np.linalg.cond(normal) <= 1e8:
-        arm_se = np.sqrt(np.diag(np.linalg.inv(normal)) * variance * correlated)
-        length = float(np.hypot(*arm))
-        if length >= _LEVER_ARM_MIN_M and length >= _LEVER_ARM_SIGMAS * float(
-                np.hypot(*arm_se)):
-            lever_arm = (float(arm[0]), float(arm[1]))
-        _LOG.debug('lever arm of the fixes from the Odometry %s +- %s m', np.round(arm, 3),
-                   np.round(arm_se, 3))
-    if lever_arm is None or found is None:
-        alone = best_lag(False)
-        if alone is None:
+    lag = best_lag(True)
+    if lag is not None:
+        matched, fitted = matched_at(lag, True)
+        if fitted is not None:
+            arm, normal = fitted
+            variance = float(np.mean((vu - matched) ** 2))
+            arm_se = np.sqrt(np.diag(np.linalg.inv(normal)) * variance * correlated)
+            length = float(np.hypot(*arm))
+            if length >= _LEVER_ARM_MIN_M and length >= _LEVER_ARM_SIGMAS * float(
+                    np.hypot(*arm_se)):
+                lever_arm = (float(arm[0]), float(arm[1]))
+            _LOG.debug('lever arm of the fixes from the Odometry %s +- %s m',
+                       np.round(arm, 3), np.round(arm_se, 3))
+    if lever_arm is None:
+        lag = best_lag(False)
+        if lag is None:
             return FixAgainstOdometry()
-        found = alone
-        matched = matched_at(found, False)[0]
-    lag = found
+        matched, _ = matched_at(lag, False)
     residual = vu - matched
     variance = float(np.mean(residual ** 2))
     # standard error of a one-parameter least squares: residual variance over the summed

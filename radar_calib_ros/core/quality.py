@@ -360,10 +360,8 @@ def _misfit_not_the_vehicles(extrinsics: Extrinsics, recording: Recording, index
     stamps = recording.target_stamps_ns[index]
     poses = interpolate_poses(recording.vehicle, hypotheses.pose_stamps_ns(
         stamps, config.sync.time_offset + extrinsics.time_offset_s), config.sync.max_pose_gap)
-    world = extrinsics.apply(targets.positions_m[index])
-    rays = world - extrinsics.translation_m
-    rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
-    predicted = np.sum(poses.velocities_mps * rays, axis=1)
+    predicted = _rigid_radial_velocity(extrinsics.apply(targets.positions_m[index]),
+                                       extrinsics, poses.velocities_mps)
     judged = poses.valid & (np.abs(predicted) > _CHECK_MIN_RADIAL_SPEED_MPS)
     if judged.mean() < _RIGID_JUDGED_SHARE:
         return None
@@ -621,10 +619,16 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
     near = box_distance(world_to_vehicle(world, poses.positions_m[frames],
                                          poses.yaw_rad[frames]),
                         config.vehicle) <= config.refine.gate_m
+    predicted_vr = _rigid_radial_velocity(world, extrinsics, poses.velocities_mps[frames])
+    return checked, frames, near, targets.radial_velocity_mps[candidates], predicted_vr
+
+
+def _rigid_radial_velocity(world: F64, extrinsics: Extrinsics, velocities: F64) -> F64:
+    """(n,) radial velocity (range rate) the radar at ``extrinsics`` sees of targets at
+    ``world`` on a vehicle moving at ``velocities`` (its yaw rate neglected)."""
     rays = world - extrinsics.translation_m
     rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
-    predicted_vr = np.sum(poses.velocities_mps[frames] * rays, axis=1)
-    return checked, frames, near, targets.radial_velocity_mps[candidates], predicted_vr
+    return np.sum(velocities * rays, axis=1)
 
 
 def check_vehicle_detection(extrinsics: Extrinsics, recording: Recording,

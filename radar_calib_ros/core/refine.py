@@ -927,11 +927,11 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
         # other parameters (the position, where the directions driven change over time), so
         # they show less of it than there is: what they still show is added, a few times.
         drift: ClockDrift | None = None
+        reference_s = _mid_recording_s(recording, config)
         for _ in range(_DRIFT_REFITS):
             # once a drift is found, what is left of it is estimated, not tested for again
             more = _clock_drift(refinement.diagnostics.get('pass_time_offsets', []),
-                                refinement.diagnostics.get('drift_reference_s', 0.0),
-                                found=drift is not None)
+                                reference_s, found=drift is not None)
             if more is None or (drift is not None
                                 and abs(more.rate) < _DRIFT_SETTLED * abs(drift.rate)):
                 break
@@ -1008,9 +1008,6 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     candidates = np.asarray(tracked.target_index, np.int64)
     track_ids = np.asarray(tracked.track_id, np.int64)
     accepted = np.asarray(selection.accepted_track_ids, np.int64)
-    stamps = recording.frame_stamps_ns
-    reference_s = float((stamps[0] + (stamps[-1] - stamps[0]) // 2 - t0_ns) * 1e-9
-                        + config.sync.time_offset)
     times = _Times.of(recording, candidates, config.sync.time_offset, t0_ns, drift)
     estimate_tau = bool(config.sync.estimate_time_offset) and config.sync.max_time_offset > 0
     est = Extrinsics(np.asarray(initial.rotation, float),
@@ -1240,14 +1237,12 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         diagnostics['time_offset_held_sigma_s'] = tau_held
     elif estimate_tau:
         diagnostics['pass_time_offsets'] = _pass_time_offsets(pc, data, est.time_offset_s)
-    diagnostics['drift_reference_s'] = reference_s
     if drift is not None:
-        first_s = float((stamps[0] - t0_ns) * 1e-9 + config.sync.time_offset)
-        last_s = float((stamps[-1] - t0_ns) * 1e-9 + config.sync.time_offset)
         diagnostics['clock_drift_ppm'] = 1e6 * drift.rate
         diagnostics['clock_drift_sigma_ppm'] = 1e6 * drift.sigma
-        span = [est.time_offset_s + drift.rate * (first_s - reference_s),
-                est.time_offset_s + drift.rate * (last_s - reference_s)]
+        span = [est.time_offset_s + drift.rate * (_radar_clock_s(recording, config, stamp)
+                                                  - drift.reference_s)
+                for stamp in recording.frame_stamps_ns[[0, -1]]]
         diagnostics['time_offset_span_s'] = span
         diagnostics['advice'] = [
             f'The radar\'s clock drifts {1e6 * drift.rate:+.0f} ppm against the vehicle\'s '
@@ -1274,6 +1269,20 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                       reflection_profile=np.asarray(profile[:reflection.n_coefficients(harmonics)],
                                                     float),
                       diagnostics=diagnostics)
+
+
+def _radar_clock_s(recording: Recording, config: CalibConfig, stamp_ns: int) -> float:
+    """A radar stamp on the refinement's time axis (``_Times``): seconds since the first
+    vehicle pose, plus ``sync.time_offset``."""
+    return float((int(stamp_ns) - int(recording.vehicle.stamps_ns[0])) * 1e-9
+                 + config.sync.time_offset)
+
+
+def _mid_recording_s(recording: Recording, config: CalibConfig) -> float:
+    """The middle of the radar's frames on the refinement's time axis: where a drifting
+    clock's offset is reported (``ClockDrift.reference_s``)."""
+    stamps = recording.frame_stamps_ns
+    return _radar_clock_s(recording, config, int(stamps[0] + (stamps[-1] - stamps[0]) // 2))
 
 
 def _pass_time_offsets(pc: uncertainty.PassCovariance, data: _Selected,
