@@ -580,6 +580,28 @@ def _data_notes(recording: Recording, corrections: list[str],
                      '(covariance type APPROXIMATED), or RTK float or DGPS reported as status 2? '
                      'The reported uncertainty takes the declared value as it stands; if the '
                      'fixes are RTK fixed, correct the driver\'s covariance and calibrate again.')
+    jumps = recording.counters.get('fix_jumps', 0)
+    if jumps:
+        c = recording.counters
+        dropped = c.get('fixes_silent_float_dropped', 0)
+        sizes = (f'{c["fix_jump_median_cm"]}-{c["fix_jump_max_cm"]} cm' if jumps > 1
+                 else f'{c["fix_jump_max_cm"]} cm')
+        when = (f'between {c["fix_jumps_first_s"]} and {c["fix_jumps_last_s"]} s'
+                if jumps > 1 else f'at {c["fix_jumps_first_s"]} s')
+        smooth = ('the Odometry\'s twist' if recording.counters.get('odometry', 0)
+                  and not recording.counters.get('odometry_twist_replaced') else 'its path')
+        what = (f'{dropped} fixes ({100 * dropped / max(fixes, 1):.0f} %) between the jumps, '
+                'the shorter share of the drive, were taken as float and left out with the '
+                'radar frames they would have placed' if dropped else
+                'which stretches are float is not clear (they would be much of the drive), so '
+                'every fix was kept and the reported uncertainty takes half a jump as the '
+                'fixes\' error')
+        notes.append(f'The vehicle\'s fixes jump {jumps} time{"s" if jumps > 1 else ""} by '
+                     f'{sizes} ({when}, fixes\' time) where {smooth} shows smooth motion: an '
+                     'RTK fix lost for RTK float and regained, while the status and the '
+                     f'covariance still said RTK fixed? {what[0].upper()}{what[1:]}. Have the '
+                     'GNSS driver report RTK float (NavSatFix status 1, or its covariance), '
+                     'and check the correction link.')
     if recording.counters.get('fixes_degraded_dropped', 0) and recording.fix_grade == 'rtk':
         dropped = recording.counters['fixes_degraded_dropped']
         stretches = recording.counters.get('fixes_unaugmented_stretches', 0)

@@ -77,10 +77,16 @@ class Recording:
         rotation sigma 0.158 deg against 0.203). Odometry alone is taken as RTK/INS, the
         set-up the tool is for."""
         nominal = NOMINAL_FIX_SIGMA_M[self.fix_grade]
+        if self.fix_grade == 'rtk':
+            declared = nominal if self.fix_sigma_m is None else self.fix_sigma_m
+            if self.counters.get('fix_jumps') and not self.counters.get(
+                    'fixes_silent_float_dropped'):
+                # silent RTK float kept (``_fix_steps``): the fixes err by about half a jump
+                half = 0.005 * self.counters['fix_jump_median_cm']
+                return (max(declared[0], half), max(declared[1], 1.5 * half))
+            return declared
         if self.fix_sigma_m is None:
             return nominal
-        if self.fix_grade == 'rtk':
-            return self.fix_sigma_m
         # an SBAS or standalone receiver cannot be centimetres, whatever its covariance says
         # (a probe's SBAS fixes declared a stale 2 cm: 74 cm off at 24 cm across)
         return (max(self.fix_sigma_m[0], nominal[0]), max(self.fix_sigma_m[1], nominal[1]))
@@ -89,7 +95,8 @@ class Recording:
     def _kept_fixes(self) -> int:
         return (self.counters.get('fixes', 0) - self.counters.get('fixes_no_fix', 0)
                 - self.counters.get('fixes_invalid', 0)
-                - self.counters.get('fixes_degraded_dropped', 0))
+                - self.counters.get('fixes_degraded_dropped', 0)
+                - self.counters.get('fixes_silent_float_dropped', 0))
 
     @property
     def fix_status_counts(self) -> tuple[int, int, int]:
@@ -524,6 +531,7 @@ class RecordingBuilder:
     def _build_vehicle(self) -> tuple[LocalFrame, VehicleTrack]:
         cfg = self._config
         odoms = [_odom_sample(o) for o in sorted(self._odoms, key=lambda o: o[0])]
+        status_rtk = False
         if self._fixes:
             # Of fixes sharing a stamp the first received is kept (a stable sort by stamp
             # alone): a receiver at 20 Hz whose stamps have 0.1 s resolution gives pairs
@@ -547,6 +555,10 @@ class RecordingBuilder:
                 self.counters['fixes_sbas_dropped'] = int(
                     np.count_nonzero(degraded & (fixes[:, 4] == 1)))
                 stamps, fixes = stamps[~degraded], fixes[~degraded]
+            declared = fixes[np.isfinite(fixes[:, 5]), 5]
+            status_rtk = bool(np.mean(fixes[:, 4] >= 2) > 0.5 or (
+                np.all(fixes[:, 4] == 0) and declared.size > 0
+                and np.median(declared) <= RTK_DECLARED_SIGMA_M))
             lat, lon, alt = fixes[:, 1], fixes[:, 2], fixes[:, 3]
             frame = LocalFrame.at(lat[0], lon[0], cfg.world.epsg)
             positions = frame.geodetic_to_local(lat, lon, alt)
@@ -662,6 +674,23 @@ class RecordingBuilder:
             velocities = _position_velocities(t, positions)
             yaw, yaw_rate = _course_over_ground(t, velocities, cfg.vehicle.min_heading_speed,
                                                 self.counters, positions)
+        if self._fixes and status_rtk and stamps.size == t.size:
+            # (not where the Odometry's samples were added between slow fixes)
+            twist = (velocities if odoms and not self.counters.get('odometry_twist_replaced')
+                     else None)
+            steps = _fix_steps(t, positions, twist)
+            if steps.times_s.size:
+                self.counters['fix_jumps'] = int(steps.times_s.size)
+                self.counters['fix_jump_max_cm'] = int(round(100.0 * steps.sizes_m.max()))
+                self.counters['fix_jump_median_cm'] = int(round(
+                    100.0 * np.median(steps.sizes_m)))
+                self.counters['fix_jumps_first_s'] = int(steps.times_s[0])
+                self.counters['fix_jumps_last_s'] = int(steps.times_s[-1])
+            if steps.dropped.any():
+                keep = ~steps.dropped
+                self.counters['fixes_silent_float_dropped'] = int(steps.dropped.sum())
+                stamps, positions, yaw = stamps[keep], positions[keep], np.asarray(yaw)[keep]
+                velocities, yaw_rate = velocities[keep], np.asarray(yaw_rate)[keep]
         vehicle = VehicleTrack(stamps, positions, np.asarray(yaw, float), velocities,
                                np.asarray(yaw_rate, float))
         return frame, vehicle
@@ -671,6 +700,135 @@ class RecordingBuilder:
 #: them; intervals longer than ``_BRIDGED_INTERVAL_S`` are not (an outage stays a gap).
 _SLOW_FIX_INTERVAL_S = 0.3
 _BRIDGED_INTERVAL_S = 2.5
+
+
+#: Least jump of RTK fix positions between consecutive fixes taken as a fix lost or regained
+#: [m], and in robust sigmas of the jump estimates (they scatter by ~1 cm at 20 Hz).
+_FIX_STEP_MIN_M = 0.1
+_FIX_STEP_SIGMAS = 6.0
+#: Largest misfit of a window's parabola [m], or in medians of all windows', that still
+#: measures a jump (a fix's noise is 1-2 cm).
+_FIX_STEP_MISFIT_M = 0.03
+_FIX_STEP_MISFIT_RATIO = 3.0
+#: Largest change of velocity across a jump [m/s] (its two sides' parabolas at its middle):
+#: a car brakes by less within a fix interval, a dead stop of a simulated one by more.
+_FIX_STEP_RATE_MPS = 1.5
+#: Fixes on each side of an interval its jump is measured from: at least this many, over
+#: at least this span [s]; fixes slower than ``_FIX_STEP_MAX_INTERVAL_S`` are not searched
+#: (a vehicle's own motion over seconds is no straight line).
+_FIX_STEP_MIN_FIXES = 4
+_FIX_STEP_MAX_FIXES = 16
+_FIX_STEP_SPAN_S = 0.5
+_FIX_STEP_MAX_INTERVAL_S = 0.2
+#: Fixes this close to a jump [s] are left out with a float stretch (their velocities,
+#: differenced over +-0.2 s, straddle the jump).
+_FIX_STEP_MARGIN_S = 0.5
+#: Largest share of the drive taken as RTK float between jumps: more, and which side of the
+#: jumps is the fixed one is no longer clear.
+_SILENT_FLOAT_MAX_SHARE = 0.4
+
+
+@dataclass(frozen=True)
+class FixSteps:
+    """Jumps of the fix positions that the vehicle's motion does not explain.
+
+    times_s : (j,) midpoints of the intervals where they happen [s, the fixes' time];
+    sizes_m : (j,) horizontal size [m]; dropped : (n,) fixes taken as RTK float and left out.
+    """
+
+    times_s: F64
+    sizes_m: F64
+    dropped: np.ndarray
+
+
+def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
+    """The jumps of fixes (n,) sorted by time, and the stretches between them taken as RTK
+    float.
+
+    Why: a receiver that loses its RTK fix for RTK float wanders by decimetres and jumps
+    back when the fix returns; some drivers say so in neither the status nor the
+    covariance (an eleventh probe: 23 cm along the boresight, no word). The jumps show: a
+    parabola fitted to the fixes just before an interval and one fitted just after disagree
+    at its middle by the jump, against ~1 cm of noise. With the Odometry's twist the
+    vehicle's travel is taken out first (``twist``, world frame), so that only the jump and
+    the twist's slow drift remain. The stretches
+    between jumps alternate fixed and float; the float ones are taken as those that make
+    the shorter share of the drive, and are dropped only while that share is clearly the
+    smaller (``_SILENT_FLOAT_MAX_SHARE``): a jump missed (a float stretch that began where
+    its error was small) flips the alternation, and then nothing is dropped, only said.
+    """
+    none = FixSteps(np.empty(0), np.empty(0), np.zeros(t.size, bool))
+    if t.size < 2:
+        return none
+    interval = float(np.median(np.diff(t)))
+    if interval <= 0.0 or interval > _FIX_STEP_MAX_INTERVAL_S:
+        return none
+    # (capped: a 100 Hz stream's half-second windows would cost memory, not accuracy)
+    k = min(max(_FIX_STEP_MIN_FIXES, math.ceil(_FIX_STEP_SPAN_S / interval)),
+            _FIX_STEP_MAX_FIXES)
+    if t.size < 2 * k + 1:
+        return none
+    q = positions[:, :2]
+    if twist is not None:
+        travelled = np.concatenate([np.zeros((1, 2)), np.cumsum(
+            0.5 * (twist[1:, :2] + twist[:-1, :2]) * np.diff(t)[:, None], axis=0)])
+        q = q - travelled
+    tw = np.lib.stride_tricks.sliding_window_view(t, k)
+    qw = np.lib.stride_tricks.sliding_window_view(q, k, axis=0).transpose(0, 2, 1)  # (m, k, 2)
+    # a parabola through each window: constant acceleration (braking, a turn) leaves none
+    # of itself in the jump, as a line would (4-5 cm at 3-8 m/s^2)
+    t_mean = tw.mean(axis=1)
+    dt = tw - t_mean[:, None]
+    design = np.stack([np.ones_like(dt), dt, dt ** 2], axis=2)  # (m, k, 3)
+    coef = np.linalg.solve(np.einsum('mki,mkj->mij', design, design),
+                           np.einsum('mki,mkd->mid', design, qw))  # (m, 3, 2)
+    misfit = np.sqrt(np.mean(np.sum((qw - design @ coef) ** 2, axis=2), axis=1))
+    # interval i (fixes i, i+1): the window ending at fix i against the one starting at i+1
+    i = np.arange(k - 1, t.size - k)
+    before, after = i - k + 1, i + 1
+    mid = 0.5 * (t[i] + t[i + 1])
+
+    def at_mid(w: I64) -> F64:
+        d = (mid - t_mean[w])[:, None]
+        return coef[w, 0] + coef[w, 1] * d + coef[w, 2] * d ** 2
+
+    def rate_at_mid(w: I64) -> F64:
+        return coef[w, 1] + 2.0 * coef[w, 2] * (mid - t_mean[w])[:, None]
+
+    jump = at_mid(after) - at_mid(before)
+    # a jump of the position leaves the velocity as it was
+    steady = np.hypot(*(rate_at_mid(after) - rate_at_mid(before)).T) <= _FIX_STEP_RATE_MPS
+    # A window across a gap (an outage, fixes already left out) measures no jump, nor one
+    # that no parabola fits, nor a pair whose velocities differ: a step of the velocity (a
+    # simulator's car stopping dead) bends the windows that straddle it, while either side
+    # of a jump is smooth and at the same speed.
+    span = 2.0 * k * interval
+    fits = misfit <= max(_FIX_STEP_MISFIT_M, _FIX_STEP_MISFIT_RATIO * float(np.median(misfit)))
+    whole = ((tw[before, -1] - tw[before, 0] <= span) & (tw[after, -1] - tw[after, 0] <= span)
+             & (t[i + 1] - t[i] <= 3.0 * interval) & fits[before] & fits[after] & steady)
+    if whole.sum() < 10:
+        return none
+    size = np.where(whole, np.hypot(jump[:, 0], jump[:, 1]), 0.0)
+    spread = 1.4826 * np.median(np.abs(jump[whole] - np.median(jump[whole], axis=0)), axis=0)
+    limit = max(_FIX_STEP_MIN_M, _FIX_STEP_SIGMAS * float(np.hypot(*spread)))
+    # one jump shows in the k intervals on either side too: its own is the largest
+    peak = ndimage.maximum_filter1d(size, 2 * k + 1, mode='constant') == size
+    at = np.flatnonzero((size > limit) & peak)
+    if at.size == 0:
+        return none
+    times, sizes = mid[at], size[at]
+    # stretches between jumps, alternately fixed and float: the float ones the shorter share
+    bounds = np.concatenate([[t[0]], times, [t[-1]]])
+    lengths = np.diff(bounds)
+    odd = lengths[1::2].sum()
+    parity = 1 if odd <= lengths[0::2].sum() else 0
+    share = lengths[parity::2].sum() / max(t[-1] - t[0], 1e-9)
+    if share > _SILENT_FLOAT_MAX_SHARE:
+        return FixSteps(times, sizes, np.zeros(t.size, bool))
+    stretch = np.searchsorted(times, t)
+    dropped = (stretch % 2) == parity
+    near = np.abs(t[:, None] - times[None, :]).min(axis=1) <= _FIX_STEP_MARGIN_S
+    return FixSteps(times, sizes, dropped | near)
 
 
 def _shared_stamps(fixes: F64, first: I64) -> int:

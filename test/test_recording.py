@@ -1109,3 +1109,89 @@ def test_fixes_sharing_a_rounded_stamp_keep_the_first_received(heading_rad: floa
     assert np.max(err) < 0.02
     assert any(f'{t.size // 2} of the vehicle\'s {t.size + 1} fixes share their header stamp'
                in n for n in _data_notes(rec, []))
+
+
+def _weaving_fixes(duration_s: float, floats: list[tuple[float, float, tuple[float, float]]],
+                   with_odometry: bool, seed: int = 3) -> RecordingBuilder:
+    """20 Hz RTK fixes (1 cm noise) of a car that brakes, accelerates and turns, and in
+    ``floats`` (start s, end s, (east, north) bias m) RTK float: the bias, wandering by a few
+    cm, while status and covariance still say RTK fixed; with its Odometry at 50 Hz."""
+    rng = np.random.default_rng(seed)
+    frame = LocalFrame.at(LAT0, LON0)
+
+    def state(t: np.ndarray) -> tuple[np.ndarray, ...]:
+        # speed 4-14 m/s (up to +-3 m/s^2), heading turning by up to 0.25 rad/s
+        speed = 9.0 + 5.0 * np.sin(2 * np.pi * t / 21.0)
+        yaw = 1.2 * np.sin(2 * np.pi * t / 30.0)
+        return speed, yaw
+
+    fine = np.arange(0.0, duration_s + 1e-9, 0.001)
+    speed, yaw = state(fine)
+    xy = np.column_stack([np.cumsum(speed * np.cos(yaw)), np.cumsum(speed * np.sin(yaw))]) * 1e-3
+    t_fix = np.arange(0.0, duration_s, 0.05)
+    local = np.column_stack([np.interp(t_fix, fine, xy[:, 0]), np.interp(t_fix, fine, xy[:, 1]),
+                             np.zeros(t_fix.size)])
+    local[:, :2] += rng.normal(0.0, 0.01, (t_fix.size, 2))
+    for start, end, bias in floats:
+        inside = (t_fix >= start) & (t_fix < end)
+        wander = np.cumsum(rng.normal(0.0, 0.003, (inside.sum(), 2)), axis=0)
+        local[inside, :2] += np.asarray(bias) + wander
+    lat, lon, alt = frame.local_to_geodetic(local)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i, ti in enumerate(t_fix):
+        builder.add_fix(FixSample(T0 + int(round(ti * 1e9)), lat[i], lon[i], alt[i], 2,
+                                  (0.02, 0.03)))
+    if with_odometry:
+        t_odom = np.arange(0.0, duration_s, 0.02)
+        s_odom, y_odom = state(t_odom)
+        rate = np.gradient(y_odom, t_odom)
+        conv = frame.local_convergence_rad(np.full(t_odom.size, LAT0), np.full(t_odom.size, LON0))
+        for i, ti in enumerate(t_odom):
+            builder.add_odometry(_odom(T0 + int(round(ti * 1e9)), y_odom[i] + conv[i], s_odom[i],
+                                       rate[i]))
+    return builder
+
+
+@pytest.mark.parametrize('with_odometry', [True, False])
+def test_silent_rtk_float_between_jumps_is_found_and_left_out(with_odometry: bool) -> None:
+    """Two stretches of RTK float that neither status nor covariance reports: the fixes jump
+    by decimetres into and out of them; those stretches (the shorter share) are dropped."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    floats = [(30.0, 45.0, (0.25, -0.15)), (80.0, 100.0, (-0.2, -0.3))]
+    rec = _weaving_fixes(150.0, floats, with_odometry).build()
+    c = rec.counters
+    assert c['fix_jumps'] == 4
+    assert c['fix_jumps_first_s'] == 29 and c['fix_jumps_last_s'] == 99
+    t = (rec.vehicle.stamps_ns - T0) / 1e9
+    for start, end, _ in floats:
+        assert not np.any((t > start - 0.4) & (t < end + 0.4))
+    # nothing else: 35 s of float and half a second outside each of the four jumps
+    assert c['fixes_silent_float_dropped'] == pytest.approx(20 * (35.0 + 4 * 0.5), abs=8)
+    assert rec.pose_sigma_m == pytest.approx((0.02, 0.03))
+    notes = [n for n in _data_notes(rec, []) if 'jump' in n]
+    assert len(notes) == 1 and 'jump 4 times' in notes[0] and 'left out' in notes[0], notes
+    assert ('Odometry' in notes[0]) == with_odometry
+
+
+@pytest.mark.parametrize('with_odometry', [True, False])
+def test_a_drive_with_no_rtk_float_has_no_fix_jumps(with_odometry: bool) -> None:
+    """Braking, accelerating at 3 m/s^2 and turning: no jump found, no fix dropped."""
+    rec = _weaving_fixes(150.0, [], with_odometry).build()
+    assert 'fix_jumps' not in rec.counters and 'fixes_silent_float_dropped' not in rec.counters
+    assert rec.vehicle.stamps_ns.size == 3000
+
+
+def test_silent_rtk_float_over_most_of_the_drive_is_kept_and_widens_the_uncertainty() -> None:
+    """When the stretches between jumps split the drive about evenly, which are float is
+    not clear: every fix is kept, said, and the fixes' sigma takes half a jump."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    rec = _weaving_fixes(100.0, [(50.0, 100.0, (0.3, 0.4))], True).build()
+    c = rec.counters
+    assert c['fix_jumps'] == 1 and c['fix_jump_max_cm'] == pytest.approx(50, abs=3)
+    assert 'fixes_silent_float_dropped' not in c and rec.vehicle.stamps_ns.size == 2000
+    assert rec.pose_sigma_m[0] == pytest.approx(0.25, abs=0.02)
+    notes = [n for n in _data_notes(rec, []) if 'jump' in n]
+    assert len(notes) == 1 and 'every fix was kept' in notes[0]
