@@ -515,6 +515,13 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'course over ground throughout (an INS mounted turned, or the heading of '
                      'its own frame rather than the vehicle\'s): it was taken off. Check the '
                      'INS yaw alignment.')
+    wander_cdeg = recording.counters.get('odometry_heading_wander_cdeg')
+    if wander_cdeg:
+        notes.append(f'The Odometry heading wanders from the vehicle\'s course over ground, by up '
+                     f'to {wander_cdeg / 100:.1f} deg over the drive (an INS holding its heading '
+                     'by its gyro between manoeuvres, without a second antenna?): the course '
+                     'over ground on straight stretches corrected it, interpolated between. '
+                     'Check the INS heading aiding.')
     reversed_runs = recording.counters.get('vehicle_reversed_stretches', 0)
     if reversed_runs:
         ambiguous = recording.counters.get('vehicle_reversed_ambiguous', 0)
@@ -647,6 +654,9 @@ def _data_notes(recording: Recording, corrections: list[str],
                        'quaternion far from unit length: an INS still aligning writes zeros)',
                        'left out; where no other pose covers them, the radar frames there '
                        'wait for a later pass'),
+              _dropped(counters.get('fixes_no_fix', 0), 'NavSatFix message',
+                       lambda n: 'reported no fix (status -1: an outage, under a bridge or in '
+                       'a tunnel)', 'left out; the radar frames there have no pose'),
               _dropped(counters.get('fixes_invalid', 0), 'NavSatFix message',
                        lambda n: 'had no usable position (NaN, latitude / longitude out of '
                        'range, or 0 / 0: a receiver without a solution yet)', 'left out'),
@@ -657,6 +667,19 @@ def _data_notes(recording: Recording, corrections: list[str],
                        lambda n: 'repeated an earlier one exactly (same stamp, same targets: '
                        'the topic recorded twice?)', 'dropped')]
     notes = [n for n in notes if n]
+    whole = recording.counters.get('radar_scans_shared_stamp', 0)
+    if whole:
+        by_receipt = recording.counters.get('radar_scans_shared_stamp_by_receipt', 0)
+        how = ('by when they were received' if by_receipt == whole else
+               f'{recording.counters.get("radar_scan_interval_ms", 0)} ms apart (the radar\'s '
+               'mean scan interval), back from the stamp' if not by_receipt else
+               'by when they were received where that told them apart, else at the radar\'s '
+               'mean scan interval')
+        notes.append(f'{whole} radar messages shared their header stamp with another, though '
+                     'each held a whole scan (the same static targets repeated): a driver that '
+                     'stamps a batch of scans with the time it publishes them, or re-uses a '
+                     f'stale stamp? They were timed {how}; the fitted clock offset takes the '
+                     'rest. Have the driver stamp each scan with its own measurement time.')
     merged = recording.counters.get('radar_messages_merged', 0)
     if merged:
         notes.append(f'{merged} radar messages shared their header stamp with another and were '

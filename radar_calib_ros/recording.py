@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from radar_calib_ros.config import CalibConfig
@@ -391,6 +392,10 @@ class RecordingBuilder:
         order = self._without_copies(
             np.argsort(np.asarray(self._frame_stamps, np.int64), kind='stable'))
         frame_stamps = np.asarray(self._frame_stamps, np.int64)[order]
+        retimed = self._whole_scans_apart(order, frame_stamps)
+        if retimed is not None:
+            resort = np.argsort(retimed, kind='stable')
+            order, frame_stamps = order[resort], retimed[resort]
         counts = np.array([self._frame_positions[i].shape[0] for i in order], np.int64)
         if counts.sum():
             positions = np.concatenate([self._frame_positions[i] for i in order])
@@ -515,6 +520,89 @@ class RecordingBuilder:
             self.counters['radar_messages_duplicate'] = int(drop.sum())
         return order[~drop]
 
+    def _whole_scans_apart(self, order: I64, stamps: I64) -> I64 | None:
+        """Header stamps (in ``order``) with the messages that share a stamp but each hold
+        a whole scan moved apart in time, or None where the messages sharing stamps are the
+        pieces of one scan (or none share one).
+
+        Why: a driver that publishes its scans in batches may stamp every scan of a batch
+        with the time it publishes (a twelfth probe: four 15 Hz scans under one stamp; as
+        the pieces of one scan, the car in them smeared over 0.8 m: 23 cm off at 2.3 sigma,
+        or no calibration), and one that re-uses a stale stamp gives two scans one stamp (an
+        eleventh probe). Pieces (sectors, or chunks of a long list) are taken at one moment,
+        whole scans one after another: the moving targets of the later lie further along
+        their radial velocities (``_scans_apart_in_time``). Whole scans are then timed by
+        their receipt where that tells them apart, else spread back from the stamp at the
+        radar's mean scan interval
+        (a batch is stamped when published, after its scans); a constant remainder is the
+        clock offset the calibration estimates.
+        """
+        first = np.flatnonzero(np.diff(stamps) != 0) + 1
+        starts = np.concatenate([[0], first])
+        sizes = np.diff(np.concatenate([starts, [stamps.size]]))
+        shared = starts[sizes > 1]
+        if shared.size == 0:
+            return None
+        # the radar's scan interval: between distinct stamps, over the scans under one (a
+        # median: a radar that fell silent for a while must not stretch it)
+        interval = int(np.median(np.diff(stamps[starts])) // np.median(sizes)) if (
+            starts.size > 1) else 0
+        if interval <= 0:
+            return None
+        if not self._scans_apart_in_time(order, shared, sizes[sizes > 1], interval):
+            return None
+        n_shared = int(sizes[sizes > 1].sum())
+        received = (np.asarray(self._radar_received, np.int64)
+                    if len(self._radar_received) == len(self._frame_stamps) else None)
+        out = stamps.copy()
+        by_receipt = 0
+        for start, size in zip(shared, sizes[sizes > 1]):
+            rows = np.arange(start, start + size)
+            if received is not None:
+                apart = received[order[rows]] - received[order[rows[0]]]
+                if np.all(np.diff(apart) >= interval // 2):
+                    out[rows] = stamps[rows] + apart
+                    by_receipt += int(size)
+                    continue
+            out[rows] = stamps[rows] - (size - 1 - np.arange(size)) * interval
+        self.counters['radar_scans_shared_stamp'] = n_shared
+        self.counters['radar_scans_shared_stamp_by_receipt'] = by_receipt
+        self.counters['radar_scan_interval_ms'] = int(round(interval / 1e6))
+        _LOG.warning('%d radar messages share their header stamp with another but each holds '
+                     'a whole scan: moved apart in time', n_shared)
+        return out
+
+    def _scans_apart_in_time(self, order: I64, shared: I64, sizes: I64,
+                             interval_ns: int) -> bool:
+        """True when consecutive messages under one stamp were measured apart in time: a
+        moving target's nearest twin in the message before (same radial velocity) lies
+        nearer or further by its radial velocity times a scan interval (the median over up
+        to ``_SHARED_GROUPS_CHECKED`` stamps at least ``_SHIFT_SHARE`` of the radar's mean
+        scan interval ``interval_ns``); pieces of one scan, taken at one time, show no such
+        shift (their targets differ, or are other points of the same objects at the same
+        moment)."""
+        sign = self._config.radar.velocity_sign
+        pick = np.linspace(0, shared.size - 1, min(shared.size, _SHARED_GROUPS_CHECKED))
+        shifts: list[F64] = []
+        for g in np.unique(pick.astype(np.int64)):
+            for k in range(int(sizes[g]) - 1):
+                a, b = int(order[shared[g] + k]), int(order[shared[g] + k + 1])
+                va, vb = sign * self._frame_velocities[a], sign * self._frame_velocities[b]
+                fast_a, fast_b = np.abs(va) > _SHIFT_MIN_MPS, np.abs(vb) > _SHIFT_MIN_MPS
+                if fast_a.sum() < 1 or fast_b.sum() < 1:
+                    continue
+                pa, pb = self._frame_positions[a][fast_a], self._frame_positions[b][fast_b]
+                dist, near = cKDTree(pa).query(pb, distance_upper_bound=_SHIFT_MATCH_M)
+                found = np.isfinite(dist)
+                found[found] &= np.abs(vb[fast_b][found] - va[fast_a][near[found]]) < 0.5
+                if found.any():
+                    shifts.append((np.linalg.norm(pb[found], axis=1)
+                                   - np.linalg.norm(pa[near[found]], axis=1))
+                                  / vb[fast_b][found])
+        if sum(d.size for d in shifts) < _SHIFT_MIN_PAIRS:
+            return False
+        return abs(float(np.median(np.concatenate(shifts)))) >= _SHIFT_SHARE * interval_ns * 1e-9
+
     def _fix_sigma(self) -> tuple[float, float] | None:
         """Median declared 1-sigma of the fixes (horizontal, vertical), None if none; the
         degraded ones the track leaves out (``_degraded_fixes``) not counted."""
@@ -634,7 +722,7 @@ class RecordingBuilder:
             vy = np.interp(t, to, v_level[:, 1])
             yaw, offset = _checked_orientation(t, coarse, measured, positions, yaw_true_at, lat,
                                                lon, frame, cfg.vehicle.min_heading_speed,
-                                               self.counters, vx)
+                                               self.counters, vx, rtk=status_rtk)
             tilt_known = _tilted(q)
             if tilt_known and self.counters.get('odometry_orientation_replaced'):
                 # An orientation that does not describe the travel (an INS's ECEF attitude,
@@ -661,10 +749,16 @@ class RecordingBuilder:
             velocities = _checked_twist(t, positions, measured, coarse, twist_world,
                                         np.column_stack([vx, vy]), self.counters, yaw_rate)
             if _slow_fixes(t, to):
+                held = offset
+                if self.counters.get('odometry_heading_wander_cdeg'):
+                    # the wander followed at the fixes, at the Odometry's own stamps
+                    wander = wrap_angle(frame.true_yaw_to_local(yaw_true_at, lat, lon)
+                                        - offset - yaw)
+                    held = offset + np.interp(to, t, wander)
                 dense = _odometry_between_fixes(
                     t, positions, yaw, velocities, yaw_rate, to,
                     _odometry_heading(frame, yaw_true, np.interp(to, t, lat),
-                                      np.interp(to, t, lon), offset, self.counters, t, to,
+                                      np.interp(to, t, lon), held, self.counters, t, to,
                                       positions, v_level),
                     v_level, rate, twist_turn, self.counters)
                 if dense is not None:
@@ -695,6 +789,17 @@ class RecordingBuilder:
                                np.asarray(yaw_rate, float))
         return frame, vehicle
 
+
+#: Radar messages under one stamp are whole scans taken apart in time when their moving
+#: targets (faster than ``_SHIFT_MIN_MPS`` [m/s]) lie further along their radial velocity
+#: than their twins (within ``_SHIFT_MATCH_M`` [m]) in the message before, by at least
+#: ``_SHIFT_SHARE`` of a mean scan interval, judged on at least ``_SHIFT_MIN_PAIRS`` pairs of
+#: up to ``_SHARED_GROUPS_CHECKED`` stamps (see ``RecordingBuilder._whole_scans_apart``).
+_SHIFT_MIN_MPS = 2.0
+_SHIFT_MATCH_M = 2.0
+_SHIFT_SHARE = 0.3
+_SHIFT_MIN_PAIRS = 30
+_SHARED_GROUPS_CHECKED = 200
 
 #: Fixes slower than this (median interval) [s] are bridged by the Odometry's motion between
 #: them; intervals longer than ``_BRIDGED_INTERVAL_S`` are not (an outage stays a gap).
@@ -864,7 +969,8 @@ def _dead_reckoned(times: F64, to: F64, twist: F64) -> tuple[F64, F64]:
         0.5 * (v[1:] + v[:-1]) * np.diff(times)[:, None], axis=0)])
 
 
-def _odometry_heading(frame: LocalFrame, yaw_true: F64, lat: F64, lon: F64, offset: float,
+def _odometry_heading(frame: LocalFrame, yaw_true: F64, lat: F64, lon: F64,
+                      offset: float | F64,
                       counters: Counter[str], t: F64, to: F64, positions: F64, v_level: F64
                       ) -> F64 | None:
     """The Odometry's heading at its own stamps as ``_checked_orientation`` read it (local
@@ -1227,8 +1333,8 @@ _REVERSE_TWIST_MPS = 0.5
 
 def _checked_orientation(t: F64, coarse: F64, measured: F64, positions: F64, yaw_true: F64,
                          lat: F64, lon: F64, frame: LocalFrame, min_speed: float,
-                         counters: Counter[str], forward_mps: F64 | None = None
-                         ) -> tuple[F64, float]:
+                         counters: Counter[str], forward_mps: F64 | None = None,
+                         rtk: bool = False) -> tuple[F64, float]:
     """(n,) local-grid heading from the Odometry orientation where it describes the
     vehicle's travel (less its constant offset, returned too: ``_heading_offset``), else
     from a compass-convention reading of it, else from the course over ground.
@@ -1243,7 +1349,9 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, positions: F64, yaw
     faced the wrong way: 3 m off, an independent probe). The orientation is judged against
     both readings of the course, with and without those reversals (a twist in the wrong
     frame has no meaningful sign), and the better one counts. ``coarse`` and ``measured``
-    are the positions' velocities over +-1 s and +-0.2 s.
+    are the positions' velocities over +-1 s and +-0.2 s. With ``rtk`` fixes, whose course
+    is good to a tenth of a degree, a slowly wandering offset is followed too
+    (``_heading_wander``).
     """
     yaw = frame.true_yaw_to_local(yaw_true, lat, lon)
     moving = np.hypot(coarse[:, 0], coarse[:, 1]) > max(min_speed, 2.0)
@@ -1262,6 +1370,16 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, positions: F64, yaw
     as_given = disagreement(yaw)
     if as_given <= _ORIENTATION_TOLERANCE_RAD:
         offset = _heading_offset(yaw[moving], courses, counters)
+        best = min(courses, key=lambda c: _median_turn(yaw[moving], c))
+        # straight stretches only: turning, a reference point ahead of the rear axle moves
+        # off the car's heading (1-3 deg at the centre of a car in a junction turn)
+        rate = np.gradient(np.unwrap(yaw), t) if t.size > 1 else np.zeros_like(t)
+        straight = np.abs(rate[moving]) < _STRAIGHT_RATE_RPS
+        wander = (_heading_wander(t[moving][straight],
+                                  wrap_angle(yaw[moving] - offset - best)[straight], t,
+                                  counters) if rtk else None)
+        if wander is not None:
+            return yaw - offset - wander, offset
         return yaw - offset, offset
     compass = frame.true_yaw_to_local(np.pi / 2.0 - yaw_true, lat, lon)
     if disagreement(compass) <= _ORIENTATION_TOLERANCE_RAD:
@@ -1305,6 +1423,61 @@ def _heading_offset(heading: F64, courses: list[F64], counters: Counter[str]) ->
     _LOG.warning('the Odometry heading is %.1f deg off the vehicle\'s course over ground '
                  'throughout: taken off', math.degrees(offset))
     return offset
+
+
+#: The Odometry heading's offset from the course over ground, in medians over bins of this
+#: length [s] with at least this many straight moving samples, is taken as varying (and
+#: followed) when those medians span more than ``_HEADING_WANDER_MIN_RAD`` (medians beyond
+#: ``_HEADING_WANDER_MAX_RAD`` left out); straight is below ``_STRAIGHT_RATE_RPS`` of yaw
+#: rate.
+_HEADING_WANDER_BIN_S = 10.0
+_HEADING_WANDER_MIN_SAMPLES = 20
+_HEADING_WANDER_MIN_RAD = math.radians(0.6)
+_HEADING_WANDER_MAX_RAD = math.radians(5.0)
+_STRAIGHT_RATE_RPS = 0.05
+
+
+def _heading_wander(t_straight: F64, residual: F64, t: F64, counters: Counter[str]
+                    ) -> F64 | None:
+    """(n,) the slowly varying part of the Odometry heading's offset from the course over
+    ground at ``t``, or None where it does not vary.
+
+    Why: an INS without a second antenna holds its heading by its gyro between manoeuvres,
+    and it wanders by a degree or two over minutes (a twelfth probe: +-2 deg over 300 s put
+    the radar 1 m too high and its pitch 1.9 deg off, far outside 2 sigma, with no word; a
+    constant offset is taken off by ``_heading_offset``). The heading turns the vehicle's
+    box and its twist, whose direction the radial velocities read against the radar's
+    rotation. A car drives where it faces, so on straight stretches the course over ground
+    (RTK, +-1 s) shows the heading's error to a tenth of a degree; its medians over
+    ``_HEADING_WANDER_BIN_S`` are interpolated between (turns, stops) and held beyond the
+    ends. ``residual`` is heading minus course (the constant offset already off) at the
+    straight moving samples ``t_straight``.
+    """
+    if t_straight.size < 2 * _HEADING_WANDER_MIN_SAMPLES:
+        return None
+    label = np.floor((t_straight - t_straight[0]) / _HEADING_WANDER_BIN_S).astype(np.int64)
+    counts = np.bincount(label)
+    used = np.flatnonzero(counts >= _HEADING_WANDER_MIN_SAMPLES)
+    if used.size < 2:
+        return None
+    medians = np.asarray(ndimage.median(residual, labels=label, index=used), float)
+    centres = np.asarray(ndimage.mean(t_straight, labels=label, index=used), float)
+    # a heading further off is no drift but a broken orientation (an INS still aligning
+    # writes the identity): what judges the orientation as a whole sees to it
+    small = np.abs(medians) <= _HEADING_WANDER_MAX_RAD
+    if small.sum() < 3:
+        return None
+    # a drift over minutes, not one bin's (the edge of a stretch where the orientation was
+    # the identity, or the wrong way round)
+    medians = ndimage.median_filter(medians[small], size=3, mode='mirror')
+    centres = centres[small]
+    if float(medians.max() - medians.min()) < _HEADING_WANDER_MIN_RAD:
+        return None
+    counters['odometry_heading_wander_cdeg'] = int(round(100.0 * math.degrees(
+        float(np.max(np.abs(medians))))))
+    _LOG.warning('the Odometry heading wanders by up to %.1f deg from the vehicle\'s course '
+                 'over ground: followed', math.degrees(float(np.max(np.abs(medians)))))
+    return np.interp(t, centres, medians)
 
 
 def _level_twist(quaternion_xyzw: F64, yaw: F64, v_body: F64) -> F64:
@@ -1716,22 +1889,31 @@ def _finite_difference(t: F64, x: F64, half_span_s: float = 0.2) -> F64:
     return v
 
 
+#: The course over ground is summed over the time the vehicle takes for this distance
+#: [m] either side, within these bounds [s] (see ``_course_over_ground``).
+_COURSE_SPAN_M = 2.0
+_COURSE_HALF_SPAN_S = (0.2, 0.5)
+
+
 def _course_over_ground(t: F64, velocities: F64, min_speed: float,
-                        counters: Counter[str], positions: F64,
-                        half_span_s: float = 0.5) -> tuple[F64, F64]:
+                        counters: Counter[str], positions: F64) -> tuple[F64, F64]:
     """Heading from the course over ground where the speed allows it, held (interpolated
     on the circle) across slow and stopped stretches where the course is noise.
 
     The course is the direction of the speed-weighted sum of the velocities of the usable
-    samples within +-half_span_s: right where the vehicle slows through ``min_speed`` a
-    single 0.4 s difference spans only ~0.4 m, so 2 cm of RTK noise turns it by ~4 deg;
-    the weighted sum leans on the faster neighbours instead. A symmetric window adds no lag
-    on a steady turn.
+    samples within +-``_COURSE_SPAN_M`` of travel (+-0.2 to 0.5 s): right where the vehicle
+    slows through ``min_speed`` a single 0.4 s difference spans only ~0.4 m, so 2 cm of RTK
+    noise turns it by ~4 deg; the weighted sum leans on the faster neighbours instead. At
+    speed the window shrinks: a car weaving in its lane (+-0.5 m over 25 m) turns its
+    heading by +-7 deg within 2.5 s, which +-0.5 s flattened by a quarter (a twelfth
+    probe's NavSatFix-only weaving: 21-35 cm along the boresight). A symmetric window adds
+    no lag on a steady turn.
     """
     speed = np.hypot(velocities[:, 0], velocities[:, 1])
     good = speed >= min_speed
     weighted = np.where(good[:, None], velocities[:, :2] * speed[:, None], 0.0)
     sums = np.vstack([np.zeros((1, 2)), np.cumsum(weighted, axis=0)])
+    half_span_s = np.clip(_COURSE_SPAN_M / np.maximum(speed, 1e-6), *_COURSE_HALF_SPAN_S)
     lo = np.searchsorted(t, t - half_span_s, side='left')
     hi = np.searchsorted(t, t + half_span_s, side='right')
     smoothed = sums[hi] - sums[lo]

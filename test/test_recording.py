@@ -311,6 +311,7 @@ def test_invalid_fixes_and_odometry_dropped_and_counted() -> None:
     assert any(n.startswith('2 Odometry messages (50 %) had no usable pose') for n in notes)
     assert any(n.startswith('4 NavSatFix messages had no usable position') and '0 / 0' in n
                for n in notes)
+    assert any(n.startswith('2 NavSatFix messages reported no fix (status -1') for n in notes)
     # the standalone and the SBAS fix (status 0, 1) amid RTK ones are kept as received but
     # left out of the vehicle track
     # (test_rtk_lost_for_stretches_is_named_with_their_count_and_length)
@@ -1112,17 +1113,21 @@ def test_fixes_sharing_a_rounded_stamp_keep_the_first_received(heading_rad: floa
 
 
 def _weaving_fixes(duration_s: float, floats: list[tuple[float, float, tuple[float, float]]],
-                   with_odometry: bool, seed: int = 3) -> RecordingBuilder:
-    """20 Hz RTK fixes (1 cm noise) of a car that brakes, accelerates and turns, and in
-    ``floats`` (start s, end s, (east, north) bias m) RTK float: the bias, wandering by a few
-    cm, while status and covariance still say RTK fixed; with its Odometry at 50 Hz."""
+                   with_odometry: bool, seed: int = 3,
+                   yaw_swing: tuple[float, float] = (1.2, 30.0),
+                   heading_error: Any = None) -> RecordingBuilder:
+    """20 Hz RTK fixes (1 cm noise) of a car that brakes, accelerates and turns (its heading
+    swinging by ``yaw_swing`` = (amplitude rad, period s)), and in ``floats`` (start s, end
+    s, (east, north) bias m) RTK float: the bias, wandering by a few cm, while status and
+    covariance still say RTK fixed; with its Odometry at 50 Hz, whose orientation errs by
+    ``heading_error(t)`` [rad] if given."""
     rng = np.random.default_rng(seed)
     frame = LocalFrame.at(LAT0, LON0)
 
     def state(t: np.ndarray) -> tuple[np.ndarray, ...]:
         # speed 4-14 m/s (up to +-3 m/s^2), heading turning by up to 0.25 rad/s
         speed = 9.0 + 5.0 * np.sin(2 * np.pi * t / 21.0)
-        yaw = 1.2 * np.sin(2 * np.pi * t / 30.0)
+        yaw = yaw_swing[0] * np.sin(2 * np.pi * t / yaw_swing[1])
         return speed, yaw
 
     fine = np.arange(0.0, duration_s + 1e-9, 0.001)
@@ -1147,9 +1152,10 @@ def _weaving_fixes(duration_s: float, floats: list[tuple[float, float, tuple[flo
         s_odom, y_odom = state(t_odom)
         rate = np.gradient(y_odom, t_odom)
         conv = frame.local_convergence_rad(np.full(t_odom.size, LAT0), np.full(t_odom.size, LON0))
+        error = heading_error(t_odom) if heading_error is not None else np.zeros(t_odom.size)
         for i, ti in enumerate(t_odom):
-            builder.add_odometry(_odom(T0 + int(round(ti * 1e9)), y_odom[i] + conv[i], s_odom[i],
-                                       rate[i]))
+            builder.add_odometry(_odom(T0 + int(round(ti * 1e9)), y_odom[i] + conv[i] + error[i],
+                                       s_odom[i], rate[i]))
     return builder
 
 
@@ -1195,3 +1201,114 @@ def test_silent_rtk_float_over_most_of_the_drive_is_kept_and_widens_the_uncertai
     assert rec.pose_sigma_m[0] == pytest.approx(0.25, abs=0.02)
     notes = [n for n in _data_notes(rec, []) if 'jump' in n]
     assert len(notes) == 1 and 'every fix was kept' in notes[0]
+
+
+@pytest.mark.parametrize('amplitude_deg, constant_deg', [(2.0, 0.0), (0.0, 0.0), (0.0, 0.5)])
+def test_a_wandering_ins_heading_is_followed_by_the_course_over_ground(
+        amplitude_deg: float, constant_deg: float) -> None:
+    """An INS heading that wanders by +-2 deg over five minutes (a twelfth probe: the radar
+    1 m too high, outside 2 sigma, no word) is corrected by the course over ground on the
+    straight stretches, and named; a true heading, or one off by a constant half degree
+    (left alone, as before), is not touched."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    def error(t: np.ndarray) -> np.ndarray:
+        return np.radians(constant_deg + amplitude_deg * np.sin(2 * np.pi * t / 300.0 + 0.7))
+
+    rec = _weaving_fixes(300.0, [], True, yaw_swing=(0.3, 60.0), heading_error=error).build()
+    t = (rec.vehicle.stamps_ns - T0) / 1e9
+    truth = 0.3 * np.sin(2 * np.pi * t / 60.0)
+    off = np.degrees(np.abs(_wrap(rec.vehicle.yaw_rad - truth)))
+    notes = [n for n in _data_notes(rec, []) if 'wanders' in n]
+    if amplitude_deg:
+        assert rec.counters['odometry_heading_wander_cdeg'] == pytest.approx(
+            100 * amplitude_deg, abs=25)
+        assert np.median(off) < 0.15 and off.max() < 0.6
+        assert len(notes) == 1 and f'{amplitude_deg:.1f} deg' in notes[0]
+        # the twist, turned by the corrected heading, points along the travel
+        course = np.arctan2(rec.vehicle.velocities_mps[:, 1], rec.vehicle.velocities_mps[:, 0])
+        assert np.median(np.degrees(np.abs(_wrap(course - truth)))) < 0.15
+    else:
+        assert 'odometry_heading_wander_cdeg' not in rec.counters and not notes
+        assert np.median(off) == pytest.approx(constant_deg, abs=0.05)
+
+
+def _moving_scans(n_scans: int, interval_ns: int, seed: int = 5) -> list[RadarFrame]:
+    """Scans of three cars driving away from the radar at 8-12 m/s (five targets each,
+    scattered over a metre) and a little static clutter, ``interval_ns`` apart from 1 s
+    after T0, stamped with their true times."""
+    rng = np.random.default_rng(seed)
+    speeds = np.array([8.0, 10.0, 12.0])
+    bearings = np.radians([-20.0, 0.0, 25.0])
+    scans = []
+    for i in range(n_scans):
+        t = 1.0 + i * interval_ns * 1e-9
+        ranges = 15.0 + 10.0 * np.arange(3) + speeds * (t - 1.0)
+        pos, vel = [], []
+        for r, b, v in zip(ranges, bearings, speeds):
+            pos.append(np.array([r * np.cos(b), r * np.sin(b), 0.0])
+                       + rng.uniform(-0.5, 0.5, (5, 3)))
+            vel.append(np.full(5, v) + rng.normal(0.0, 0.05, 5))
+        pos.append(rng.uniform(-30.0, 30.0, (4, 3)) + np.array([40.0, 0.0, 0.0]))
+        vel.append(rng.normal(0.0, 0.03, 4))
+        scans.append(RadarFrame(T0 + int(round(t * 1e9)), np.concatenate(pos),
+                                np.concatenate(vel)))
+    return scans
+
+
+def test_whole_scans_published_in_batches_under_one_stamp_are_taken_apart() -> None:
+    """Four 15 Hz scans published together, all stamped 20 ms after the last (a twelfth
+    probe: merged as the pieces of one scan, the cars smeared over 0.8 m; 23 cm off, or no
+    calibration): the moving targets show them apart in time, so they are spread back
+    from the stamp at the scan interval; the 20 ms left is the clock offset's."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    interval = 66_666_667
+    builder, _, _ = circle_builder()
+    scans = _moving_scans(40, interval)
+    for g in range(10):
+        batch = scans[4 * g:4 * g + 4]
+        stamp = batch[-1].stamp_ns + 20_000_000
+        for scan in batch:
+            builder.add_radar_frame(RadarFrame(stamp, scan.positions_m, scan.radial_velocity_mps))
+    rec = builder.build()
+    assert rec.counters['radar_scans_shared_stamp'] == 40
+    assert rec.counters['radar_scans_shared_stamp_by_receipt'] == 0
+    assert 'radar_messages_merged' not in rec.counters
+    truth = np.array([T0] + [s.stamp_ns + 20_000_000 for s in scans])
+    np.testing.assert_allclose(rec.frame_stamps_ns, truth, atol=1e6, rtol=0)
+    assert np.bincount(rec.targets.frame_index).tolist() == [1] + [19] * 40
+    notes = [n for n in _data_notes(rec, []) if 'whole scan' in n]
+    assert len(notes) == 1 and '40 radar messages' in notes[0] and '67 ms apart' in notes[0]
+
+
+def test_scans_re_using_a_stale_stamp_are_timed_by_their_receipt() -> None:
+    """Every fifth scan carries the stamp of the scan before (a driver's stale stamp, an
+    eleventh probe): received a scan interval later, it is timed by its receipt."""
+    interval = 40_000_000
+    builder, _, _ = circle_builder()
+    builder.note_receipt('radar', T0, T0 + 3_000_000)  # its first frame's
+    scans = _moving_scans(40, interval)
+    for i, scan in enumerate(scans):
+        stamp = scans[i - 1].stamp_ns if i % 5 == 4 else scan.stamp_ns
+        builder.add_radar_frame(RadarFrame(stamp, scan.positions_m, scan.radial_velocity_mps))
+        builder.note_receipt('radar', stamp, scan.stamp_ns + 3_000_000)
+    rec = builder.build()
+    assert rec.counters['radar_scans_shared_stamp'] == 16
+    assert rec.counters['radar_scans_shared_stamp_by_receipt'] == 16
+    np.testing.assert_array_equal(rec.frame_stamps_ns[1:], [s.stamp_ns for s in scans])
+
+
+def test_chunks_of_one_scan_under_one_stamp_still_merge() -> None:
+    """A long target list published in two chunks (every other target), taken at one
+    moment: the moving targets' twins across the chunks show no shift, so they are one
+    scan."""
+    builder, _, _ = circle_builder()
+    for scan in _moving_scans(30, 66_666_667):
+        for part in (0, 1):
+            builder.add_radar_frame(RadarFrame(scan.stamp_ns, scan.positions_m[part::2],
+                                               scan.radial_velocity_mps[part::2]))
+    rec = builder.build()
+    assert 'radar_scans_shared_stamp' not in rec.counters
+    assert rec.counters['radar_messages_merged'] == 30
+    assert np.bincount(rec.targets.frame_index).tolist() == [1] + [19] * 30
