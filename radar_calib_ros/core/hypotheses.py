@@ -299,6 +299,11 @@ class _Cluster:
         return int(self.passes.shape[0])
 
 
+#: A radar whose targets span less azimuth than this [deg] has a narrow view (a fan beam),
+#: which a vehicle crossing it passes in a few frames.
+_NARROW_VIEW_DEG = 30.0
+
+
 def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ...],
                      recording: Recording, ground: GroundPlane,
                      config: CalibConfig) -> HypothesisSelection:
@@ -332,10 +337,28 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     """
     cfg = config.hypotheses
     if not hyps:
+        frames = np.array([t.stamps_ns.size for t in tracks], np.int64)
+        short = int(np.count_nonzero(frames < cfg.min_track_frames))
+        # a narrow view (a fan beam) or a slow radar crosses the vehicle in a few frames
+        # (an eleventh probe's +-8 deg beam: 3-4 frames a pass, 'never seen')
+        lengths = (f'; {short} of them {"is" if short == 1 else "are"} shorter than that '
+                   f'(the longest {int(frames.max())} frames): a view the vehicle crosses in a '
+                   'few frames (a narrow beam, a slow frame rate) gives too short tracks; '
+                   'hypotheses.min_track_frames and associate.min_track_frames set the least'
+                   if frames.size and short > frames.size // 2 else '')
+        if not lengths and len(recording.targets):
+            xy = recording.targets.positions_m[:, :2]
+            lo, hi = np.degrees(np.percentile(np.arctan2(xy[:, 1], xy[:, 0]), [1, 99]))
+            if hi - lo < _NARROW_VIEW_DEG:
+                lengths = (f'; the radar\'s targets span only {lo:+.0f} to {hi:+.0f} deg of '
+                           'azimuth: a vehicle crossing so narrow a view is seen in a few '
+                           'frames, too few to make a track (associate.min_track_frames, '
+                           'hypotheses.min_track_frames set the least); drive along the '
+                           'boresight through it instead')
         raise InsufficientDataError(
             _STAGE, f'the calibration vehicle was never seen: none of {len(tracks)} tracks '
             f'follows its poses (registration RMS <= {cfg.max_rms_m:g} m over at least '
-            f'{cfg.min_track_frames} frames)')
+            f'{cfg.min_track_frames} frames){lengths}')
     by_id = {int(t.track_id): t for t in tracks}
     hyp_tracks = [by_id[h.track_id] for h in hyps]
     # an upper bound of the passes (time gaps only): even all hypotheses together. Too few

@@ -384,7 +384,9 @@ class Drive:
     heading_rad : mean direction of travel (ENU, counter-clockwise from east);
     n_targets : targets of the final fit within it;
     seen_share : share of its frames, where the vehicle moved along the line of sight, that
-        show targets with its radial velocity near its box (NaN when none could be checked).
+        show targets with its radial velocity near its box (NaN when none could be checked);
+    scan_share : radar scans within it against the radar's usual rate (below one where the
+        radar fell silent).
     """
 
     start_s: float
@@ -392,6 +394,7 @@ class Drive:
     heading_rad: float
     n_targets: int
     seen_share: float
+    scan_share: float = 1.0
 
 
 def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_index: I64,
@@ -441,14 +444,22 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
         with np.errstate(invalid='ignore', divide='ignore'):
             seen_share = np.where(n_checked > 0, (in_pass & seen[None, :]).sum(axis=1)
                                   / n_checked, np.nan)
+    # the radar's scans in each drive against its usual rate: a radar that rebooted, or
+    # whose link dropped, shows no target for want of scans, not of the vehicle
+    scans = np.sort(hypotheses.pose_stamps_ns(recording.frame_stamps_ns, offset_s))
+    n_scans = (np.searchsorted(scans, passes[:, 1], side='right')
+               - np.searchsorted(scans, passes[:, 0], side='left'))
+    scan_interval_ns = float(np.median(np.diff(scans))) if scans.size > 1 else 0.0
     t0 = int(vehicle.stamps_ns[0])
     drives = []
-    for (start, end), n, share in zip(passes, n_fitted, seen_share):
+    for (start, end), n, share, k in zip(passes, n_fitted, seen_share, n_scans):
         during = (vehicle.stamps_ns >= start) & (vehicle.stamps_ns <= end)
         vel = vehicle.velocities_mps[during]
+        expected = (end - start) / scan_interval_ns if scan_interval_ns > 0 else 0.0
         drives.append(Drive((start - t0) * 1e-9, (end - t0) * 1e-9,
                             math.atan2(float(vel[:, 1].sum()), float(vel[:, 0].sum())),
-                            int(n), float(share)))
+                            int(n), float(share),
+                            min(1.0, k / expected) if expected >= 1.0 else 1.0))
     return drives
 
 
@@ -456,9 +467,16 @@ def _unused_drives_advice(unused: list[Drive], n_drives: int) -> str:
     def when(drives: list[Drive]) -> str:
         return ', '.join(f'{d.start_s:.0f}-{d.end_s:.0f} s '
                          f'{uncertainty.compass_name(d.heading_rad)}bound' for d in drives)
-    unseen = [d for d in unused if not d.seen_share >= _SEEN_DRIVE_SHARE]
-    mixed = [d for d in unused if d.seen_share >= _SEEN_DRIVE_SHARE]
+    silent = [d for d in unused if d.scan_share < _SILENT_SCAN_SHARE]
+    scanned = [d for d in unused if d.scan_share >= _SILENT_SCAN_SHARE]
+    unseen = [d for d in scanned if not d.seen_share >= _SEEN_DRIVE_SHARE]
+    mixed = [d for d in scanned if d.seen_share >= _SEEN_DRIVE_SHARE]
     reasons = []
+    if silent:
+        reasons.append('the radar published few or no scans (silent: rebooted, or its link '
+                       f'dropped?) at {when(silent)}')
+        if unseen or mixed:
+            reasons[-1] += ';'
     if unseen:
         reasons.append('the radar showed no target moving with the vehicle (hidden behind other '
                        f'traffic, or outside the vertical view) at {when(unseen)}')
@@ -476,6 +494,10 @@ def _unused_drives_advice(unused: list[Drive], n_drives: int) -> str:
             f'{n_drives - len(unused)}; if those views are needed, drive them again with the '
             'vehicle clear of other traffic and well inside the view.')
 
+
+#: A drive with fewer radar scans than this share of the radar's usual rate is one the
+#: radar was silent for.
+_SILENT_SCAN_SHARE = 0.2
 
 #: A drive through the view counts from this speed on [m/s] (a queue crawling in view is
 #: still one drive; stops in view are merged by ``hypotheses.merge_intervals_ns``).

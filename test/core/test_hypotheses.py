@@ -123,14 +123,33 @@ def test_short_tracks_make_no_hypothesis() -> None:
     cfg = with_hypotheses(scene.config, min_track_length_m=500.0)
     assert hypotheses.generate_hypotheses(scene.tracks, scene.recording, scene.ground,
                                           cfg) == []
+    # the reason names the tracks' lengths when most were too short (a narrow beam)
+    longest = max(t.stamps_ns.size for t in scene.tracks)
+    cfg = with_hypotheses(scene.config, min_track_frames=longest + 1)
+    with pytest.raises(InsufficientDataError, match='never seen') as err:
+        hypotheses.prune_hypotheses([], scene.tracks, scene.recording, scene.ground, cfg)
+    assert f'(the longest {longest} frames)' in str(err.value)
+    assert 'hypotheses.min_track_frames' in str(err.value)
 
 
 def test_vehicle_never_seen_exits_with_reason() -> None:
     scene = make_scene(n_passes=3, random_cars=8, seed=1)
     others = tuple(t for t in scene.tracks if t.track_id not in scene.vehicle_track_ids)
     hyps = hypotheses.generate_hypotheses(others, scene.recording, scene.ground, scene.config)
-    with pytest.raises(InsufficientDataError, match='never seen'):
+    with pytest.raises(InsufficientDataError, match='never seen') as err:
         hypotheses.prune_hypotheses(hyps, others, scene.recording, scene.ground, scene.config)
+    # long enough tracks of other cars: nothing said of short tracks, nor of the view
+    assert 'shorter than that' not in str(err.value) and 'span only' not in str(err.value)
+    # a fan beam's +-8 deg: the reason names the narrow view
+    rec = scene.recording
+    az = np.degrees(np.arctan2(rec.targets.positions_m[:, 1], rec.targets.positions_m[:, 0]))
+    inside = np.abs(az) < 8.0
+    narrow = replace(rec, targets=replace(
+        rec.targets, positions_m=rec.targets.positions_m[inside],
+        radial_velocity_mps=rec.targets.radial_velocity_mps[inside],
+        frame_index=rec.targets.frame_index[inside]))
+    with pytest.raises(InsufficientDataError, match='span only -[78] to \\+[78] deg'):
+        hypotheses.prune_hypotheses(hyps, others, narrow, scene.ground, scene.config)
 
 
 def test_too_few_passes_exits_with_the_numbers() -> None:

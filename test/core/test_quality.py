@@ -190,6 +190,23 @@ def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None
     mixed = quality._unused_drives_advice(unused, 5)
     assert 'saw targets moving with the vehicle, but the fit left them out' in mixed
     assert 'could not be told apart' in mixed and 'edge of the view' in mixed
+    # a radar that fell silent through that drive (a reboot): no scans, not no vehicle
+    window = (rec.frame_stamps_ns >= rec.vehicle.stamps_ns[0] + lost_from * 1e9 - 1e9) & (
+        rec.frame_stamps_ns <= rec.vehicle.stamps_ns[0] + lost_to * 1e9 + 1e9)
+    keep_frames = np.flatnonzero(~window)
+    keep_targets = np.isin(rec.targets.frame_index, keep_frames)
+    renumber = np.cumsum(~window) - 1
+    silent_rec = replace(rec, frame_stamps_ns=rec.frame_stamps_ns[keep_frames], targets=replace(
+        rec.targets, positions_m=rec.targets.positions_m[keep_targets],
+        radial_velocity_mps=rec.targets.radial_velocity_mps[keep_targets],
+        frame_index=renumber[rec.targets.frame_index[keep_targets]]))
+    kept_silent = np.flatnonzero(np.isin(np.flatnonzero(keep_targets), kept))
+    drives = quality.drives_through_view(scene.truth, silent_rec, kept_silent, scene.config)
+    unused = [d for d in drives if d.n_targets < 20]
+    assert len(drives) == 5 and len(unused) == 1 and unused[0].scan_share < 0.2
+    assert all(d.scan_share > 0.9 for d in drives if d.n_targets >= 20)
+    silent = quality._unused_drives_advice(unused, 5)
+    assert 'published few or no scans' in silent and 'hidden behind' not in silent
 
 
 def test_a_box_far_off_the_vehicle_is_named_but_faces_only_reflections_are_not() -> None:
