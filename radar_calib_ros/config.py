@@ -221,6 +221,10 @@ class RefineConfig:
         0.1, "systematic 1-sigma of the difference between the vehicle's reflection heights "
         'seen from the front and from the rear; its effect on the fit (mostly roll and pitch) '
         'is added to the reported uncertainty [m]', lo=0.0, hi=5.0)
+    azimuth_scale_sigma: float = _p(
+        0.0, "prior 1-sigma of a scale error of the radar's own azimuths (1 % = 0.45 deg at "
+        '45 deg), fitted with the calibration when above 0 (for a radar whose angle '
+        'calibration is in doubt)', lo=0.0, hi=0.2)
     model_sigma_along_m: float = _p(
         0.02, 'systematic 1-sigma of the reflection model along the boresight, added to the '
         'reported uncertainty [m]', lo=0.0, hi=5.0)
