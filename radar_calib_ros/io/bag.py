@@ -49,6 +49,9 @@ _ROLE_PARAMETER = {'radar': 'radar_topic', 'navsat': 'navsat_topic', 'odom': 'od
 _POSE_ROLES = ('navsat', 'odom')
 _LOG = logging.getLogger(__name__)
 
+#: What a rosbag2 storage file is called (mcap and sqlite3 storage).
+_STORAGE_SUFFIXES = ('.mcap', '.db3')
+
 # What a damaged storage file raises inside rosbags' readers besides its own errors: sqlite3
 # for a damaged database, struct/EOF/Value errors from the mcap record parser.
 _STORAGE_ERRORS = (ReaderError, AnyReaderError, SerdeError, sqlite3.DatabaseError,
@@ -146,7 +149,19 @@ def _check_bag_path(path: Path) -> Path:
     if not path.exists():
         raise BagReadError(f'bag {str(path)!r} does not exist')
     if path.is_dir() and not (path / 'metadata.yaml').is_file():
-        raise BagReadError(f'{str(path)!r} is not a rosbag2 bag (no metadata.yaml in it)')
+        # A recording cut short (the recorder killed, the laptop's battery) leaves its
+        # storage file without the metadata.yaml written at the end; one such file reads
+        # on its own (a thirteenth probe's were refused although intact).
+        files = sorted(p for p in path.iterdir() if p.suffix in _STORAGE_SUFFIXES)
+        if len(files) == 1:
+            _LOG.warning('%r has no metadata.yaml (a recording interrupted before it was '
+                         'written?): reading its storage file %s alone', str(path),
+                         files[0].name)
+            return files[0]
+        hint = (f' but {len(files)} storage files: run `ros2 bag reindex {path}` to write '
+                'it' if files else '')
+        raise BagReadError(f'{str(path)!r} is not a rosbag2 bag (no metadata.yaml in it'
+                           f'{hint})')
     return path
 
 
@@ -160,7 +175,11 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
     except PermissionError as err:
         raise BagReadError(f'reading bag {str(path)!r}: permission denied') from err
     except (OSError, *_STORAGE_ERRORS) as err:
-        raise BagReadError(f'reading bag {str(path)!r}: {_reason(err)}') from err
+        reason = _reason(err)
+        if 'end magic' in reason.lower():
+            reason += (' (an MCAP file cut short: the recording was interrupted? `mcap recover` '
+                       'of the mcap CLI rewrites what it holds into a readable file)')
+        raise BagReadError(f'reading bag {str(path)!r}: {reason}') from err
     try:
         yield reader
     finally:

@@ -412,6 +412,30 @@ def test_corrupt_storage_file(tmp_path: Path, good_bags: dict[str, Path], storag
     assert '\n' not in str(info.value)
 
 
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_bag_without_metadata_reads_its_one_storage_file(
+        tmp_path: Path, good_bags: dict[str, Path], storage: str) -> None:
+    """A recording interrupted before rosbag2 wrote metadata.yaml: its one storage file is
+    read alone; with several (a split recording) the reason says to reindex."""
+    bag = _copy(good_bags[storage], tmp_path / 'bag')
+    (bag / 'metadata.yaml').unlink()
+    rec = read_recording(bag, CalibConfig())
+    assert rec.counters['radar_frames'] == len(scene()['frames'])
+    shutil.copy(_storage_file(bag), bag / ('second' + _storage_file(bag).suffix))
+    with pytest.raises(BagReadError, match='but 2 storage files: run `ros2 bag reindex'):
+        read_recording(bag, CalibConfig())
+
+
+def test_a_truncated_mcap_file_is_named_as_cut_short(tmp_path: Path,
+                                                     good_bags: dict[str, Path]) -> None:
+    bag = _copy(good_bags['mcap'], tmp_path / 'bag')
+    target = _storage_file(bag)
+    target.write_bytes(target.read_bytes()[:int(0.7 * target.stat().st_size)])
+    with pytest.raises(BagReadError, match='reading bag') as info:
+        read_recording(bag, CalibConfig())
+    assert 'cut short' in str(info.value) and 'mcap recover' in str(info.value)
+
+
 def test_missing_storage_file(tmp_path: Path, good_bags: dict[str, Path]) -> None:
     bag = _copy(good_bags['sqlite3'], tmp_path / 'bag')
     _storage_file(bag).unlink()
