@@ -6,6 +6,7 @@ whether the data came from a bag or from live messages.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -737,6 +738,34 @@ def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibC
     return ground, clutter_note, tracks, hyps, selection
 
 
+def _mirrored_axis(recording: Recording, config: CalibConfig) -> str | None:
+    """Which axis of the radar's targets was most likely reversed ('y' or 'z') when stages
+    2-6 agree on the vehicle, and the detection check passes, with the cloud mirrored;
+    else None. Only on a failure of stage 6.
+
+    Why: a driver that writes a left-handed cloud (azimuths positive to the right, as some
+    simulators' native frames) or elevations positive downwards gives a mirror image, which
+    no rotation of the mount turns into the scene; stage 6 then failed with other road
+    users blamed (a thirteenth probe). Mirrored back, the vehicle's tracks agree at once.
+    Reversing y or z is the same mirror up to a roll of 180 deg, so one test serves both,
+    and the roll of the mirrored fit tells which is likelier (a radar hung upside down is
+    rarer than a reversed elevation).
+    """
+    positions = recording.targets.positions_m.copy()
+    positions[:, 1] *= -1.0
+    mirrored = replace(recording, targets=replace(recording.targets, positions_m=positions))
+    try:
+        tracked = track_targets(mirrored, config)
+        ground, _ = _ground_plane(mirrored, tracked, config)
+        tracks = tuple(track.track_clusters(mirrored, tracked, ground, config.track))
+        _, selection = _hypotheses(tracks, mirrored, ground, config, leaps=False)
+        quality.check_vehicle_detection(selection.extrinsics, mirrored, config)
+    except InsufficientDataError:
+        return None
+    rot = selection.extrinsics.rotation
+    return 'z' if abs(math.atan2(rot[2, 1], rot[2, 2])) > math.pi / 2 else 'y'
+
+
 def _run_calibration(recording: Recording, config: CalibConfig,
                      progress: ProgressFn | None) -> CalibrationResult:
     stage = _StageClock(progress)
@@ -758,10 +787,19 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         # looser clustering and shorter tracks calibrate it (an independent 10 Hz radar with
         # ~1.2 targets on the car: refused with the defaults, 15 cm with these). So on such
         # a failure, and only then, stages 2-6 run again with them, and a note says so.
-        sparse = (_sparse_radar_config(recording, tracked, config)
-                  if err.stage == 'hypotheses' and type(err) is InsufficientDataError
-                  else None)
+        stage_6 = err.stage == 'hypotheses' and type(err) is InsufficientDataError
+        sparse = _sparse_radar_config(recording, tracked, config) if stage_6 else None
         if sparse is None:
+            mirrored = _mirrored_axis(recording, config) if stage_6 else None
+            if mirrored is not None:
+                likely = ('the elevations (z) most likely, as the mirrored fit hangs the '
+                          'radar upside down' if mirrored == 'z' else
+                          'the azimuths (y) most likely')
+                raise InsufficientDataError(
+                    err.stage, f'{err.reason.rstrip(".")}. Mirrored, the radar\'s targets do '
+                    'follow the vehicle: its point cloud is a mirror image (one axis reversed: '
+                    f'{likely}), which no mount can produce. Fix the driver\'s axes (REP-103: '
+                    'x forward, y left, z up) and calibrate again.') from err
             raise
         sparse_config, per_frame = sparse
         settings = _settings_text(_sparse_radar_settings(config))

@@ -304,6 +304,28 @@ def test_a_2d_radar_calibrates_with_its_tilt_in_the_uncertainty(drive: Any) -> N
     assert any('no elevation' in n for n in cal['quality']['advice'])
 
 
+@pytest.mark.parametrize('axis, likely', [(1, 'the azimuths (y)'), (2, 'the elevations (z)')])
+def test_a_mirrored_point_cloud_is_refused_with_its_axis_named(drive: Any, axis: int,
+                                                               likely: str) -> None:
+    """A driver that reverses the azimuths (a left-handed cloud) or the elevations: no
+    mount turns a mirror image into the scene, so stage 6 fails; the reason says that the
+    mirrored cloud does follow the vehicle, and which axis is the likelier culprit (a
+    thirteenth probe's reason blamed other road users)."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.pipeline import run_calibration
+
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    p = recording.targets.positions_m.copy()
+    p[:, axis] *= -1.0
+    mirrored = dataclasses.replace(recording, targets=dataclasses.replace(
+        recording.targets, positions_m=p))
+    with pytest.raises(InsufficientDataError, match='mirror image') as err:
+        run_calibration(mirrored, config)
+    assert err.value.stage == 'hypotheses' and f'{likely} most likely' in err.value.reason
+    assert 'REP-103' in err.value.reason
+
+
 def test_radar_frames_outside_the_pose_stream_are_noted_with_the_jump() -> None:
     """A radar clock that jumps by an hour halfway: the frames after the jump have no pose;
     the note counts them and names the jump. Frames all inside the pose stream: no note."""
