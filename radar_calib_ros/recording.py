@@ -533,9 +533,8 @@ class RecordingBuilder:
         whole scans one after another: the moving targets of the later lie further along
         their radial velocities (``_scans_apart_in_time``). Whole scans are then timed by
         their receipt where that tells them apart, else spread back from the stamp at the
-        radar's mean scan interval
-        (a batch is stamped when published, after its scans); a constant remainder is the
-        clock offset the calibration estimates.
+        radar's scan interval (a batch is stamped when published, after its scans); a
+        constant remainder is the clock offset the calibration estimates.
         """
         first = np.flatnonzero(np.diff(stamps) != 0) + 1
         starts = np.concatenate([[0], first])
@@ -856,11 +855,13 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
     parabola fitted to the fixes just before an interval and one fitted just after disagree
     at its middle by the jump, against ~1 cm of noise. With the Odometry's twist the
     vehicle's travel is taken out first (``twist``, world frame), so that only the jump and
-    the twist's slow drift remain. The stretches
-    between jumps alternate fixed and float; the float ones are taken as those that make
-    the shorter share of the drive, and are dropped only while that share is clearly the
-    smaller (``_SILENT_FLOAT_MAX_SHARE``): a jump missed (a float stretch that began where
-    its error was small) flips the alternation, and then nothing is dropped, only said.
+    the twist's slow drift remain. The stretches between jumps alternate fixed and float;
+    the float ones are taken as those that make the shorter share of the drive, and are
+    dropped only while that share is clearly the smaller (``_SILENT_FLOAT_MAX_SHARE``). A
+    jump missed (a float stretch that began where its error was small) flips the
+    alternation after it; where that leaves no clearly smaller share, nothing is dropped,
+    only said (on the eleventh probe's recordings about 97 % of the dropped fixes were
+    float).
     """
     none = FixSteps(np.empty(0), np.empty(0), np.zeros(t.size, bool))
     if t.size < 2:
