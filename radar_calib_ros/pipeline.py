@@ -656,8 +656,9 @@ def _data_notes(recording: Recording, corrections: list[str],
                        'left out; where no other pose covers them, the radar frames there '
                        'wait for a later pass'),
               _dropped(counters.get('fixes_no_fix', 0), 'NavSatFix message',
-                       lambda n: 'reported no fix (status -1: an outage, under a bridge or in '
-                       'a tunnel)', 'left out; the radar frames there have no pose'),
+                       lambda n: 'reported no fix (status -1: a receiver without a solution, '
+                       'starting up or in an outage under a bridge or in a tunnel)',
+                       'left out; the radar frames there have no pose'),
               _dropped(counters.get('fixes_invalid', 0), 'NavSatFix message',
                        lambda n: 'had no usable position (NaN, latitude / longitude out of '
                        'range, or 0 / 0: a receiver without a solution yet)', 'left out'),
