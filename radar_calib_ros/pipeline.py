@@ -674,11 +674,12 @@ def _data_notes(recording: Recording, corrections: list[str],
         by_receipt = recording.counters.get('radar_scans_shared_stamp_by_receipt', 0)
         how = ('by when they were received' if by_receipt == whole else
                f'{recording.counters.get("radar_scan_interval_ms", 0)} ms apart (the radar\'s '
-               'mean scan interval), back from the stamp' if not by_receipt else
+               'scan interval), back from the stamp' if not by_receipt else
                'by when they were received where that told them apart, else at the radar\'s '
-               'mean scan interval')
+               'scan interval')
         notes.append(f'{whole} radar messages shared their header stamp with another, though '
-                     'each held a whole scan (the same static targets repeated): a driver that '
+                     'each held a whole scan (their moving targets lay further along their '
+                     'radial velocities than in the message before): a driver that '
                      'stamps a batch of scans with the time it publishes them, or re-uses a '
                      f'stale stamp? They were timed {how}; the fitted clock offset takes the '
                      'rest. Have the driver stamp each scan with its own measurement time.')
@@ -725,17 +726,18 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
 
 
 def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibConfig,
-                   stage: _StageClock
+                   stage: _StageClock, *, leaps: bool = True
                    ) -> tuple[GroundPlane, str | None, tuple[SmoothedTrack, ...],
                               list[Hypothesis], HypothesisSelection]:
     """Ground plane, tracking and hypotheses: the ground plane with its clutter note, the
-    smoothed tracks, the hypotheses and the accepted selection."""
+    smoothed tracks, the hypotheses and the accepted selection (``leaps``: see
+    ``_hypotheses``)."""
     with stage('ground_plane'):
         ground, clutter_note = _ground_plane(recording, tracked, config)
     with stage('track'):
         tracks = tuple(track.track_clusters(recording, tracked, ground, config.track))
     with stage('hypotheses'):
-        hyps, selection = _hypotheses(tracks, recording, ground, config)
+        hyps, selection = _hypotheses(tracks, recording, ground, config, leaps=leaps)
     return ground, clutter_note, tracks, hyps, selection
 
 
@@ -756,10 +758,8 @@ def _mirrored_axis(recording: Recording, config: CalibConfig) -> str | None:
     positions[:, 1] *= -1.0
     mirrored = replace(recording, targets=replace(recording.targets, positions_m=positions))
     try:
-        tracked = track_targets(mirrored, config)
-        ground, _ = _ground_plane(mirrored, tracked, config)
-        tracks = tuple(track.track_clusters(mirrored, tracked, ground, config.track))
-        _, selection = _hypotheses(tracks, mirrored, ground, config, leaps=False)
+        *_, selection = _stages_4_to_6(mirrored, track_targets(mirrored, config), config,
+                                       _StageClock(), leaps=False)
         quality.check_vehicle_detection(selection.extrinsics, mirrored, config)
     except InsufficientDataError:
         return None

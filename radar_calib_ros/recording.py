@@ -576,8 +576,8 @@ class RecordingBuilder:
         """True when consecutive messages under one stamp were measured apart in time: a
         moving target's nearest twin in the message before (same radial velocity) lies
         nearer or further by its radial velocity times a scan interval (the median over up
-        to ``_SHARED_GROUPS_CHECKED`` stamps at least ``_SHIFT_SHARE`` of the radar's mean
-        scan interval ``interval_ns``); pieces of one scan, taken at one time, show no such
+        to ``_SHARED_GROUPS_CHECKED`` stamps at least ``_SHIFT_SHARE`` of the radar's scan
+        interval ``interval_ns``); pieces of one scan, taken at one time, show no such
         shift (their targets differ, or are other points of the same objects at the same
         moment)."""
         sign = self._config.radar.velocity_sign
@@ -792,7 +792,7 @@ class RecordingBuilder:
 #: Radar messages under one stamp are whole scans taken apart in time when their moving
 #: targets (faster than ``_SHIFT_MIN_MPS`` [m/s]) lie further along their radial velocity
 #: than their twins (within ``_SHIFT_MATCH_M`` [m]) in the message before, by at least
-#: ``_SHIFT_SHARE`` of a mean scan interval, judged on at least ``_SHIFT_MIN_PAIRS`` pairs of
+#: ``_SHIFT_SHARE`` of a scan interval, judged on at least ``_SHIFT_MIN_PAIRS`` pairs of
 #: up to ``_SHARED_GROUPS_CHECKED`` stamps (see ``RecordingBuilder._whole_scans_apart``).
 _SHIFT_MIN_MPS = 2.0
 _SHIFT_MATCH_M = 2.0
@@ -874,11 +874,7 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
             _FIX_STEP_MAX_FIXES)
     if t.size < 2 * k + 1:
         return none
-    q = positions[:, :2]
-    if twist is not None:
-        travelled = np.concatenate([np.zeros((1, 2)), np.cumsum(
-            0.5 * (twist[1:, :2] + twist[:-1, :2]) * np.diff(t)[:, None], axis=0)])
-        q = q - travelled
+    q = positions[:, :2] if twist is None else positions[:, :2] - _travelled(t, twist)
     tw = np.lib.stride_tricks.sliding_window_view(t, k)
     qw = np.lib.stride_tricks.sliding_window_view(q, k, axis=0).transpose(0, 2, 1)  # (m, k, 2)
     # a parabola through each window: constant acceleration (braking, a turn) leaves none
@@ -966,8 +962,14 @@ def _dead_reckoned(times: F64, to: F64, twist: F64) -> tuple[F64, F64]:
     """(velocity, path from the first of ``times``): the world twist (sampled at ``to``) at
     ``times`` and its integral by trapezoids."""
     v = np.column_stack([np.interp(times, to, twist[:, i]) for i in range(2)])
-    return v, np.vstack([np.zeros((1, 2)), np.cumsum(
-        0.5 * (v[1:] + v[:-1]) * np.diff(times)[:, None], axis=0)])
+    return v, _travelled(times, v)
+
+
+def _travelled(times: F64, v: F64) -> F64:
+    """(n, 2) path from the first of ``times``: horizontal velocities ``v`` at ``times``
+    integrated by trapezoids."""
+    return np.vstack([np.zeros((1, 2)), np.cumsum(
+        0.5 * (v[1:, :2] + v[:-1, :2]) * np.diff(times)[:, None], axis=0)])
 
 
 def _odometry_heading(frame: LocalFrame, yaw_true: F64, lat: F64, lon: F64,

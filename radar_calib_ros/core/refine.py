@@ -372,7 +372,8 @@ class _Model:
             # the scale took up that change and the bench's horizontal median doubled
             # (interior 7.4 -> 14.4 cm, skin 7.7 -> 31 cm). Hence opt-in
             # (``refine.azimuth_scale_sigma``), not the default.
-            turn = -x[self.i_end] * np.arctan2(sensor[:, 1], sensor[:, 0])
+            azimuth = np.arctan2(sensor[:, 1], sensor[:, 0])
+            turn = -x[self.i_end] * azimuth
             ct, st = np.cos(turn), np.sin(turn)
             sensor = np.column_stack([ct * sensor[:, 0] - st * sensor[:, 1],
                                       st * sensor[:, 0] + ct * sensor[:, 1], sensor[:, 2]])
@@ -438,13 +439,15 @@ class _Model:
         dist_v = np.linalg.norm(los_v, axis=1)
         unit_v = los_v / dist_v[:, None]
         v_pred = np.einsum('ij,ij->i', point_velocity, unit_v)
-        return {'sensor': sensor, 'rot': rot, 'los': los, 'world': world, 'pos': pos,
-                'yaw': yaw, 'vel': vel,
-                'rate': rate, 'acc': acc, 'aspect': aspect, 'basis': basis,
-                'd_basis': d_basis, 'offset': offset, 'rz_offset': rz_offset, 'rel': rel,
-                'err': err, 'point_velocity': point_velocity, 'range': rng, 'unit': unit,
-                'v_pred': v_pred, 'c': c, 's': s, 'centre_los': centre_los,
-                'unit_v': unit_v, 'dist_v': dist_v, 'rho': rho, 'range_basis': range_basis}
+        geo = {'sensor': sensor, 'rot': rot, 'los': los, 'world': world, 'pos': pos,
+               'yaw': yaw, 'vel': vel, 'rate': rate, 'acc': acc, 'aspect': aspect,
+               'basis': basis, 'd_basis': d_basis, 'offset': offset, 'rz_offset': rz_offset,
+               'rel': rel, 'err': err, 'point_velocity': point_velocity, 'range': rng,
+               'unit': unit, 'v_pred': v_pred, 'c': c, 's': s, 'centre_los': centre_los,
+               'unit_v': unit_v, 'dist_v': dist_v, 'rho': rho, 'range_basis': range_basis}
+        if self.n_par > self.i_end:
+            geo['azimuth'] = azimuth   # the measured azimuths the scale turns by
+        return geo
 
     def residuals(self, x: F64, jac: bool) -> tuple[F64, F64 | None, F64, F64 | None]:
         """Data residuals (3n position + n velocity, whitened and information-weighted)
@@ -507,9 +510,8 @@ class _Model:
         if n_par > ie:
             # the scale turns each target about the radar's z by -scale * azimuth
             sen = g['sensor']
-            azimuth = np.arctan2(d.sensor_m[:, 1], d.sensor_m[:, 0])
-            d_sensor = -azimuth[:, None] * np.column_stack([-sen[:, 1], sen[:, 0],
-                                                            np.zeros(n)])
+            d_sensor = -g['azimuth'][:, None] * np.column_stack([-sen[:, 1], sen[:, 0],
+                                                                 np.zeros(n)])
             de[:, :, ie] = d_sensor @ g['rot'].T
         j_pos = np.einsum('nij,njk->nik', d.whiten, de) * sw[:, None, None]
         # v = V_pt . d / |d| with d = (l_x, l_y, P_z + m_z - t_z):
@@ -1294,7 +1296,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         if abs(scale) >= _AZIMUTH_SCALE_NOTE and abs(scale) >= 3.0 * scale_sigma:
             diagnostics['advice'] = [
                 f'The radar\'s azimuths are {"stretched" if scale > 0 else "compressed"} by '
-                f'{100 * abs(scale):.1f} % (+-{100 * scale_sigma:.1f}): '
+                f'{100 * abs(scale):.1f} % (+-{100 * scale_sigma:.2f}): '
                 f'{math.degrees(abs(scale) * math.radians(45.0)):.2f} deg at 45 deg, an error '
                 'of its own angle calibration (or of its mount on the pole)? The fit took it out '
                 '(unmodelled, it moves the radar along its boresight by about that share of the '
