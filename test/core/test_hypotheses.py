@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from calib_scene import make_scene, with_hypotheses
 
+from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import hypotheses, registration
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.types import Hypothesis
@@ -370,3 +371,31 @@ def test_a_car_that_reflects_from_its_skin_is_fitted_at_its_faces() -> None:
     interior = centre + rng.normal(0.0, 0.3, centre.shape)
     kept = hypotheses.facing_radar(corr(interior), config, keep_better=True).target_m
     np.testing.assert_array_equal(kept, centre)
+
+
+def test_a_long_vehicle_of_flat_panels_is_fitted_at_its_nearest_point() -> None:
+    """A 12 m bus whose flat sides reflect like mirrors: the radar sees the point of its
+    footprint nearest to it (a face's foot of the perpendicular, or a corner). The centre
+    and the faces' centroid put the radar metres off; the nearest point, tried for long
+    vehicles only, brings it back. A car's config does not try it."""
+    bus = CalibConfig.from_mapping({'vehicle.length': 12.0, 'vehicle.width': 2.5,
+                                    'vehicle.rear_overhang': 3.0})
+    x0, x1 = -3.0, 9.0
+    centre = np.column_stack([np.linspace(-40.0, 40.0, 80), np.full(80, 15.0),
+                              np.full(80, 0.5)])
+    yaw = np.zeros(80)
+    middle = centre[:, :2] + [0.5 * (x0 + x1), 0.0]
+    centre[:, :2] = middle
+    nearest = centre.copy()
+    nearest[:, 0] = np.clip(0.0, middle[:, 0] - 6.0, middle[:, 0] + 6.0)
+    nearest[:, 1] = middle[:, 1] - 1.25
+
+    def corr(src):  # type: ignore[no-untyped-def]
+        return hypotheses.Correspondences(1, src, centre, np.arange(yaw.size), yaw)
+    naive = registration.fit_yaw_translation(nearest, centre)
+    chosen = hypotheses.facing_radar(corr(nearest), bus, keep_better=True).target_m
+    fit = registration.fit_yaw_translation(nearest, chosen)
+    assert np.linalg.norm(naive.translation_m[:2]) > 1.0
+    assert np.linalg.norm(fit.translation_m[:2]) < 0.1
+    car = hypotheses.facing_radar(corr(nearest), CalibConfig(), keep_better=True).target_m
+    assert np.linalg.norm(registration.fit_yaw_translation(nearest, car).translation_m[:2]) > 0.5
