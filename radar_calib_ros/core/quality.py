@@ -136,6 +136,9 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         extra['refinement_passes'] = int(refinement.n_passes)
         if 'clock_drift_ppm' in refinement.diagnostics:
             extra['clock_drift_ppm'] = round(float(refinement.diagnostics['clock_drift_ppm']), 1)
+        if 'azimuth_noise_deg' in refinement.diagnostics:
+            extra['azimuth_noise_deg'] = round(
+                float(refinement.diagnostics['azimuth_noise_deg']), 2)
         if 'azimuth_scale' in refinement.diagnostics:
             extra['azimuth_scale_percent'] = round(
                 100.0 * float(refinement.diagnostics['azimuth_scale']), 2)
