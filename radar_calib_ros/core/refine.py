@@ -1181,6 +1181,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     stride = 1
     noise_config = config
     azimuth_noise = 0.0
+    hidden_targets = 0
 
     def fit_round(keep: np.ndarray, every: int) -> tuple[float, float, float]:
         """Fit the gated targets (every ``every``-th by target number) from ``est``;
@@ -1210,8 +1211,10 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         keep = _gate(est, candidates, track_ids, track_size, accepted, times, recording, poses,
                      config, first_round=rounds == 1, view=view)
         if keep.any():
-            keep[keep] = ~_occluded(est, candidates[keep], times.subset(keep), recording,
-                                    poses, road_users, config)
+            hidden = _occluded(est, candidates[keep], times.subset(keep), recording, poses,
+                               road_users, config)
+            hidden_targets = int(hidden.sum())
+            keep[keep] = ~hidden
         keep[keep] = _in_passes(times.subset(keep).t_s, config.hypotheses.pass_gap_s)
         index = candidates[keep]
         if index.size < _MIN_TARGETS:
@@ -1365,6 +1368,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             'pass, and the fit followed it as a straight line (the clock offset reported is '
             'the one at the middle). Synchronise the radar\'s clock (PTP or NTP), or stamp '
             'its scans with a synchronised host clock.', *diagnostics['advice']]
+    # the vehicle's targets near its box the last round left out as hidden (``_occluded``)
+    diagnostics['hidden_targets'] = hidden_targets
     if _noisy_azimuth(azimuth_noise, cfg.azimuth_sigma_deg):
         diagnostics['azimuth_noise_deg'] = azimuth_noise
         diagnostics['advice'] = [
@@ -1447,15 +1452,14 @@ def _azimuth_noise_deg(model: _Model, x: F64, data: _Selected) -> float:
     bins = np.clip(np.searchsorted(edges, np.abs(w_perp), side='right') - 1, 0, 9)
     w2 = np.bincount(bins, w_perp ** 2, minlength=10) / np.maximum(
         np.bincount(bins, minlength=10), 1)
-    spread2 = np.array([(1.4826 * np.median(np.abs(r - np.median(r)))) ** 2 if r.size else 0.0
-                        for r in (residual[bins == b] for b in range(10))])
     if w2[-1] < _NOISE_CROSS_SPEED_MPS ** 2:
         return 0.0    # seen head-on only: too little speed across the lines of sight
+    spread2 = np.array([(1.4826 * np.median(np.abs(r - np.median(r)))) ** 2 if r.size else 0.0
+                        for r in (residual[bins == b] for b in range(10))])
     design = np.column_stack([np.ones(10), w2])
     coef, *_ = np.linalg.lstsq(design, spread2, rcond=None)
-    dof_residual = spread2 - design @ coef
-    slope_var = (float(dof_residual @ dof_residual) / 8.0
-                 * np.linalg.inv(design.T @ design)[1, 1])
+    misfit = spread2 - design @ coef
+    slope_var = float(misfit @ misfit) / 8.0 * np.linalg.inv(design.T @ design)[1, 1]
     if coef[1] <= 3.0 * math.sqrt(max(slope_var, 0.0)):
         return 0.0    # no growth with the speed across beyond the scatter of the bins
     return float(np.degrees(math.sqrt(float(coef[1]))))

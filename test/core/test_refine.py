@@ -1064,11 +1064,13 @@ def test_frames_where_another_road_user_hides_the_vehicle_are_left_out() -> None
                         np.full(occluders.size, scene.tracked.track_id.max() + 1)]))
     occluded = dataclasses.replace(scene, recording=dataclasses.replace(rec, targets=targets),
                                    tracked=tracked)
-    plain_used = _run(scene).diagnostics['residuals']['target_index']
-    assert np.isin(hidden, plain_used).mean() > 0.5
+    plain = _run(scene)
+    assert np.isin(hidden, plain.diagnostics['residuals']['target_index']).mean() > 0.5
+    assert plain.diagnostics['hidden_targets'] < 0.1 * hidden.size
     ref = _run(occluded)
     used = ref.diagnostics['residuals']['target_index']
     assert not np.isin(hidden, used).any()
+    assert ref.diagnostics['hidden_targets'] > 0.5 * hidden.size
     assert np.isin(shown, used).mean() > 0.5
     assert not np.isin(occluders, used).any()
     assert errors(ref.extrinsics, truth)['horizontal'] < 0.1
