@@ -1074,3 +1074,10 @@ def test_frames_where_another_road_user_hides_the_vehicle_are_left_out() -> None
     assert np.isin(shown, used).mean() > 0.5
     assert not np.isin(occluders, used).any()
     assert errors(ref.extrinsics, truth)['horizontal'] < 0.1
+    # the same targets in the vehicle's own track are not another road user (a box still
+    # metres off puts the vehicle's own targets in front of it): nothing is hidden
+    own_track = int(scene.tracked.track_id[np.isin(scene.tracked.target_index, first)][0])
+    merged = dataclasses.replace(occluded, tracked=TrackedTargets(
+        tracked.target_index, np.concatenate([scene.tracked.track_id,
+                                              np.full(occluders.size, own_track)])))
+    assert _run(merged).diagnostics['hidden_targets'] == 0
