@@ -72,7 +72,8 @@ from threadpoolctl import threadpool_limits
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import reflection, uncertainty
-from radar_calib_ros.core.vehicle import box_distance, box_limits, world_to_vehicle
+from radar_calib_ros.core.vehicle import (box_corners_world, box_distance, box_limits,
+                                          world_to_vehicle)
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.types import (
@@ -746,15 +747,11 @@ def _occluded(est: Extrinsics, index: I64, times: _Times, recording: Recording,
     pos, yaw, _, _, _ = times.poses(poses, est.time_offset_s)
     frames = recording.targets.frame_index[index]
     unique, first = np.unique(frames, return_index=True)
-    x0, x1, y0, y1 = box_limits(config.vehicle)
-    corners = np.array([[x0, y0], [x0, y1], [x1, y0], [x1, y1]])
-    c, s = np.cos(yaw[first]), np.sin(yaw[first])
     world = np.empty((unique.size, 4, 3))
-    world[:, :, 0] = pos[first, 0, None] + c[:, None] * corners[:, 0] - s[:, None] * corners[:, 1]
-    world[:, :, 1] = pos[first, 1, None] + s[:, None] * corners[:, 0] + c[:, None] * corners[:, 1]
+    world[:, :, :2] = box_corners_world(pos[first], yaw[first], config.vehicle)
     road = pos[first, 2] - config.vehicle.ref_height
     world[:, :, 2] = road[:, None] + 0.5 * config.vehicle.height
-    sensor = (world - est.translation_m) @ est.rotation
+    sensor = est.inverse_apply(world.reshape(-1, 3)).reshape(world.shape)
     bearing = np.arctan2(sensor[:, :, 1], sensor[:, :, 0])
     margin = math.radians(_OCCLUDER_MARGIN_DEG)
     low, high = bearing.min(axis=1) - margin, bearing.max(axis=1) + margin

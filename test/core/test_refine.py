@@ -16,6 +16,7 @@ from refine_scene import Scene, errors, make_scene
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import refine, reflection, uncertainty
+from radar_calib_ros.core.vehicle import box_corners_world
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.types import Extrinsics, Targets, TrackedTargets
 
@@ -1037,12 +1038,8 @@ def test_frames_where_another_road_user_hides_the_vehicle_are_left_out() -> None
     one = np.array([first[frame_of[first] == f][0] for f in hide])
     times = refine._Times.of(rec, one, 0.0, t0)
     pos, yaw, _, _, _ = times.poses(poses, truth.time_offset_s)
-    x0, x1, y0, y1 = refine.box_limits(scene.config.vehicle)
     blockers, blocker_frames = [], []
-    for f, p, h in zip(hide, pos, yaw):
-        corners = np.array([[p[0] + math.cos(h) * x - math.sin(h) * y,
-                             p[1] + math.sin(h) * x + math.cos(h) * y]
-                            for x in (x0, x1) for y in (y0, y1)])
+    for f, p, corners in zip(hide, pos, box_corners_world(pos, yaw, scene.config.vehicle)):
         rel = corners - truth.translation_m[:2]
         rho = np.hypot(rel[:, 0], rel[:, 1])
         j = int(np.argmin(rho))
