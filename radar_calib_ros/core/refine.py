@@ -1196,11 +1196,12 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         est = Extrinsics(rot, trans, tau)
         # the next round whitens with the azimuth noise the radar shows where that is far
         # above the configured one (each round anew: the first, gated wide, shows more)
-        azimuth_noise = _azimuth_noise_deg(model, fit.x, data)
+        geometry = model.geometry(fit.x)
+        azimuth_noise = _azimuth_noise_deg(geometry, data)
         noise_config = (dataclasses.replace(config, refine=dataclasses.replace(
             cfg, azimuth_sigma_deg=azimuth_noise))
             if _noisy_azimuth(azimuth_noise, cfg.azimuth_sigma_deg) else config)
-        scatter = _scatter(model, fit.x, cfg.position_sigma_m, noise_config)
+        scatter = _scatter(geometry, cfg.position_sigma_m, noise_config)
         _LOG.debug('refine round %d: %d targets (every %d), %d iterations, moved %s', rounds,
                    data.index.size, every, fit.iterations, moved)
         return moved
@@ -1432,8 +1433,9 @@ def _noisy_azimuth(shown_deg: float, configured_deg: float) -> bool:
     return shown_deg >= max(_AZIMUTH_NOISE_NOTE_DEG, 2.0 * configured_deg)
 
 
-def _azimuth_noise_deg(model: _Model, x: F64, data: _Selected) -> float:
-    """The radar's azimuth noise [deg] as the radial velocities show it.
+def _azimuth_noise_deg(g: dict[str, F64], data: _Selected) -> float:
+    """The radar's azimuth noise [deg] as the radial velocities show it, from the fit's
+    geometry ``g`` (``_Model.geometry``) over ``data``.
 
     A line of sight turned by azimuth noise n changes the predicted v_r by n times the
     speed across it (W_perp, the rigid car's velocity field at the radar, across the line
@@ -1444,12 +1446,11 @@ def _azimuth_noise_deg(model: _Model, x: F64, data: _Selected) -> float:
     fast. Position residuals cannot show it: the car's own extent across the line of sight
     swamps the noise there.
     """
-    g = model.geometry(x)
+    if data.index.size < 10 * _NOISE_BIN_TARGETS:
+        return 0.0
     unit, velocity = g['unit_v'], g['point_velocity']
     w_perp = velocity[:, 1] * unit[:, 0] - velocity[:, 0] * unit[:, 1]
     residual = g['v_pred'] - data.v_mps
-    if residual.size < 10 * _NOISE_BIN_TARGETS:
-        return 0.0
     edges = np.quantile(np.abs(w_perp), np.linspace(0.0, 1.0, 11))
     bins = np.clip(np.searchsorted(edges, np.abs(w_perp), side='right') - 1, 0, 9)
     w2 = np.bincount(bins, w_perp ** 2, minlength=10) / np.maximum(
@@ -1926,12 +1927,11 @@ def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, po
                      np.sqrt(weight), pass_id, whiten, sigma_v, vertical_ok, grade)
 
 
-def _scatter(model: _Model, x: F64, floor_m: float, config: CalibConfig) -> F64:
+def _scatter(g: dict[str, F64], floor_m: float, config: CalibConfig) -> F64:
     """Spread of the reflectors around the profile in the vehicle frame (x, y, z) for the
-    next round's whitening: the robust spread (1.4826 MAD) of the position residuals minus
-    the typical radar noise along that axis (range/azimuth horizontally, elevation
-    vertically), floored."""
-    g = model.geometry(x)
+    next round's whitening, from the fit's geometry ``g`` (``_Model.geometry``): the robust
+    spread (1.4826 MAD) of the position residuals minus the typical radar noise along that
+    axis (range/azimuth horizontally, elevation vertically), floored."""
     c, s = g['c'], g['s']
     e = g['err']
     local = np.column_stack([c * e[:, 0] + s * e[:, 1], -s * e[:, 0] + c * e[:, 1], e[:, 2]])
