@@ -467,6 +467,10 @@ def _dropped(count: int, noun: str, what: Callable[[int], str], done: str) -> st
 _IMPLAUSIBLE_RTK_SIGMA_M = 0.5
 
 
+#: An Odometry heading offset taken off is named from this size [centidegrees].
+_HEADING_OFFSET_NOTE_CDEG = 30
+
+
 def _data_notes(recording: Recording, corrections: list[str],
                 fitted_offset_s: float | None = None) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
@@ -510,8 +514,9 @@ def _data_notes(recording: Recording, corrections: list[str],
         notes.append('The Odometry orientation did not describe the vehicle\'s travel (identity, '
                      'or another frame\'s): the heading was taken from the course over '
                      'ground. Check the driver\'s orientation.')
-    offset_cdeg = recording.counters.get('odometry_heading_offset_cdeg')
-    if offset_cdeg:
+    offset_cdeg = recording.counters.get('odometry_heading_offset_cdeg', 0)
+    # a few tenths are taken off silently: a good INS is aligned to about that
+    if abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG:
         notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the vehicle\'s '
                      'course over ground throughout (an INS mounted turned, or the heading of '
                      'its own frame rather than the vehicle\'s): it was taken off. Check the '
@@ -591,25 +596,34 @@ def _data_notes(recording: Recording, corrections: list[str],
     jumps = recording.counters.get('fix_jumps', 0)
     if jumps:
         c = recording.counters
-        dropped = c.get('fixes_silent_float_dropped', 0)
-        sizes = (f'{c["fix_jump_median_cm"]}-{c["fix_jump_max_cm"]} cm' if jumps > 1
-                 else f'{c["fix_jump_max_cm"]} cm')
+        odometry = bool(c.get('fix_jumps_in_odometry'))
+        source, pose, poses = (('Odometry positions', 'pose', 'poses') if odometry
+                               else ('fixes', 'fix', 'fixes'))
+        total = c.get('odometry', 0) if odometry else fixes
+        dropped = c.get('odometry_silent_float_dropped' if odometry
+                        else 'fixes_silent_float_dropped', 0)
+        sizes = (f'{c["fix_jump_median_cm"]}-{c["fix_jump_max_cm"]} cm'
+                 if c['fix_jump_median_cm'] != c['fix_jump_max_cm'] else
+                 f'{c["fix_jump_max_cm"]} cm')
         when = (f'between {c["fix_jumps_first_s"]} and {c["fix_jumps_last_s"]} s'
                 if jumps > 1 else f'at {c["fix_jumps_first_s"]} s')
         smooth = ('the Odometry\'s twist' if recording.counters.get('odometry', 0)
                   and not recording.counters.get('odometry_twist_replaced') else 'its path')
-        what = (f'{dropped} fixes ({100 * dropped / max(fixes, 1):.0f} %) between the jumps, '
-                'the shorter share of the drive, were taken as float and left out with the '
-                'radar frames they would have placed' if dropped else
+        what = (f'{dropped} {poses} ({100 * dropped / max(total, 1):.0f} %) between the '
+                'jumps, the shorter share of the drive, were taken as float and left out with '
+                'the radar frames they would have placed' if dropped else
                 'which stretches are float is not clear (they would be much of the drive), so '
-                'every fix was kept and the reported uncertainty takes half a jump as the '
-                'fixes\' error')
-        notes.append(f'The vehicle\'s fixes jump {jumps} time{"s" if jumps > 1 else ""} by '
-                     f'{sizes} ({when}, fixes\' time) where {smooth} shows smooth motion: an '
-                     'RTK fix lost for RTK float and regained, while the status and the '
-                     f'covariance still said RTK fixed? {what[0].upper()}{what[1:]}. Have the '
-                     'GNSS driver report RTK float (NavSatFix status 1, or its covariance), '
-                     'and check the correction link.')
+                f'every {pose} was kept and the reported uncertainty takes half a jump as '
+                f'the {poses}\' error')
+        fix = ('Have the INS report the GNSS solution it rests on (its pose covariance), and '
+               'check the correction link.' if odometry else
+               'Have the GNSS driver report RTK float (NavSatFix status 1, or its covariance), '
+               'and check the correction link.')
+        notes.append(f'The vehicle\'s {source} jump {jumps} time{"s" if jumps > 1 else ""} '
+                     f'by {sizes} ({when}, {poses}\' time) where {smooth} shows smooth '
+                     'motion: an RTK fix lost for RTK float and regained, while '
+                     f'{"the pose" if odometry else "the status and the"} covariance still '
+                     f'said RTK fixed? {what[0].upper()}{what[1:]}. {fix}')
     if recording.counters.get('fixes_degraded_dropped', 0) and recording.fix_grade == 'rtk':
         dropped = recording.counters['fixes_degraded_dropped']
         stretches = recording.counters.get('fixes_unaugmented_stretches', 0)
