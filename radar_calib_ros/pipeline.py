@@ -593,6 +593,16 @@ def _data_notes(recording: Recording, corrections: list[str],
                      '(covariance type APPROXIMATED), or RTK float or DGPS reported as status 2? '
                      'The reported uncertainty takes the declared value as it stands; if the '
                      'fixes are RTK fixed, correct the driver\'s covariance and calibrate again.')
+    jitter_ms = recording.counters.get('fix_stamp_jitter_ms')
+    if jitter_ms:
+        along_cm = recording.counters.get('fix_stamp_jitter_cm', 0)
+        notes.append(f'The vehicle\'s fixes scatter by {along_cm} cm (1 sigma) along their '
+                     'travel from a smooth path, and hardly at all across it: their stamps '
+                     f'vary by about {jitter_ms} ms, as when a driver '
+                     'stamps each fix on arrival rather than at the receiver\'s epoch. The '
+                     'fixes were smoothed over +-1 s (what is left adds centimetres along the '
+                     'travel). Stamp the fixes with the receiver\'s time (e.g. '
+                     'nmea_navsat_driver\'s use_GNSS_time) and calibrate again.')
     jumps = recording.counters.get('fix_jumps', 0)
     if jumps:
         c = recording.counters
