@@ -762,6 +762,15 @@ def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibC
         tracks = tuple(track.track_clusters(recording, tracked, ground, config.track))
     with stage('hypotheses'):
         hyps, selection = _hypotheses(tracks, recording, ground, config, leaps=leaps)
+    if selection.rivals:
+        distance, passes = selection.rivals[0]
+        raise InsufficientDataError('hypotheses', (
+            f'two groups of tracks each agree across passes ({selection.n_passes} and '
+            f'{passes}) but place the radar {distance:.0f} m apart: another vehicle of the '
+            'calibration vehicle\'s size kept pace with it through the view (a convoy, or a '
+            'car alongside), and which group is the calibration vehicle the data cannot '
+            'tell. Drive the passes with no vehicle of its size keeping pace with it (ahead, '
+            'behind or alongside)'))
     return ground, clutter_note, tracks, hyps, selection
 
 

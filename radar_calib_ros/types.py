@@ -239,7 +239,9 @@ class HypothesisSelection:
     extrinsics: the transform re-estimated on the accepted cluster's merged
     correspondences, concatenated with R_αβ (sensor -> world); pass_intervals_ns: (p, 2)
     [start, end] stamps of the distinct vehicle passes of the accepted tracks (fragments
-    of one pass merged).
+    of one pass merged); rivals: (horizontal distance [m], passes) of every other agreeing
+    group seen in nearly as many passes that places the radar elsewhere
+    (``hypotheses.prune_hypotheses``).
     """
 
     hypotheses: tuple[Hypothesis, ...]
@@ -250,6 +252,7 @@ class HypothesisSelection:
     extrinsics: Extrinsics
     n_correspondences: int
     pass_intervals_ns: I64 = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    rivals: tuple[tuple[float, int], ...] = ()
 
     @property
     def n_passes(self) -> int:

@@ -503,3 +503,23 @@ def test_a_radar_on_its_own_clock_calibrates_with_sync_time_offset(drive: Any) -
     assert shifted.quality.passes == synced.quality.passes
     np.testing.assert_allclose(shifted.extrinsics.translation_m,
                                synced.extrinsics.translation_m, atol=1e-3)
+
+
+def test_a_rival_group_of_tracks_refuses_the_calibration(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Stage 6 found a second group agreeing nearly as well elsewhere (a look-alike keeping
+    pace with the vehicle): exit 1 naming both groups and the distance, no result."""
+    passes = np.zeros((4, 2), np.int64)
+    ambiguous = dataclasses.replace(_selection(4), pass_intervals_ns=passes,
+                                    rivals=((22.0, 3),))
+    monkeypatch.setattr(pipeline, '_ground_plane', lambda *a: (None, None))
+    monkeypatch.setattr(pipeline.track, 'track_clusters', lambda *a: [])
+    monkeypatch.setattr(pipeline, '_hypotheses', lambda *a, **k: ([], ambiguous))
+    with pytest.raises(InsufficientDataError,
+                       match=r'\(4 and 3\) but place the radar 22 m apart.*convoy'):
+        pipeline._stages_4_to_6(_NO_LAG, None, CalibConfig(),  # type: ignore[arg-type]
+                                pipeline._StageClock())
+    clear = dataclasses.replace(ambiguous, rivals=())
+    monkeypatch.setattr(pipeline, '_hypotheses', lambda *a, **k: ([], clear))
+    assert pipeline._stages_4_to_6(_NO_LAG, None, CalibConfig(),  # type: ignore[arg-type]
+                                   pipeline._StageClock())[-1] is clear

@@ -70,7 +70,7 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
                split_pass: int | None = None, random_cars: int = 0,
                followers: float | None = None, radar_stamp_shift_s: float = 0.0,
                stop_pass: int | None = None, stop_s: float = 12.0,
-               config: CalibConfig | None = None) -> Scene:
+               escort_m: float | None = None, config: CalibConfig | None = None) -> Scene:
     """Build a scene.
 
     lanes: lane index per pass (default 0, 1, 2, ...); split_pass: that pass's track is
@@ -78,7 +78,8 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
     that do not fit); followers: a car following the vehicle on every pass with this lag
     [s]; radar_stamp_shift_s: radar stamps are this much late against the pose clock;
     stop_pass: in that pass the vehicle stops for stop_s in view after 3 s (a stopped car
-    has no moving targets: its track is cut in two).
+    has no moving targets: its track is cut in two); escort_m: a car of the vehicle's size
+    kept this far ahead of it on every pass (a convoy).
     """
     rng = np.random.default_rng(seed)
     config = config or CalibConfig()
@@ -183,6 +184,12 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
                 np.column_stack([np.full(fidx.size, centre_forward), np.zeros(fidx.size)]),
                 fxy, np.full(fidx.size, heading))
             add_track(fidx, np.column_stack([fc, np.full(fidx.size, ROAD_Z + 0.5)]))
+
+        if escort_m is not None:
+            ec = vehicle_box.vehicle_to_world(
+                np.column_stack([np.full(idx.size, centre_forward + escort_m),
+                                 np.zeros(idx.size)]), pxy, pyaw)
+            add_track(idx, np.column_stack([ec, np.full(idx.size, ROAD_Z + 0.5)]))
 
     for _ in range(random_cars):
         start = rng.uniform(0.0, total_s - 8.0)

@@ -94,6 +94,21 @@ def test_follower_cluster_loses_the_tie_on_timing() -> None:
                                scene.truth.translation_m, atol=1e-7)
 
 
+def test_a_look_alike_keeping_pace_on_every_pass_is_a_rival() -> None:
+    """A car of the vehicle's size 11 m ahead of it on every pass (a convoy) agrees across
+    passes as well as the vehicle does: the selection names it as a rival (the pipeline then
+    refuses, a tenth probe's convoy having been 10.9 m off at a 0.5 m sigma); the follower
+    that loses on timing, and chance decoys, are no rivals."""
+    scene = make_scene(n_passes=4, lanes=[0, 0, 0, 0], escort_m=11.0)
+    _, selection = _select(scene)
+    assert len(selection.rivals) == 1
+    distance, passes = selection.rivals[0]
+    assert distance == pytest.approx(11.0, abs=0.5) and passes == 4
+    for quiet in (make_scene(n_passes=4, lanes=[0, 0, 0, 0], followers=1.5),
+                  make_scene(n_passes=4, random_cars=15, split_pass=2, seed=3)):
+        assert _select(quiet)[1].rivals == ()
+
+
 def test_lowest_mean_angle_cluster_wins() -> None:
     # hand-made hypotheses: cluster A agrees to 0.2 deg, cluster B scatters by 3 deg
     scene = make_scene(n_passes=8, lanes=[0, 1, 2, 3, 0, 1, 2, 3])
