@@ -598,11 +598,11 @@ def _data_notes(recording: Recording, corrections: list[str],
         along_cm = recording.counters.get('fix_stamp_jitter_cm', 0)
         notes.append(f'The vehicle\'s fixes scatter by {along_cm} cm (1 sigma) along their '
                      'travel from a smooth path, and hardly at all across it: their stamps '
-                     f'vary by about {jitter_ms} ms, as when a driver '
-                     'stamps each fix on arrival rather than at the receiver\'s epoch. The '
-                     'fixes were smoothed over +-1 s (what is left adds centimetres along the '
-                     'travel). Stamp the fixes with the receiver\'s time (e.g. '
-                     'nmea_navsat_driver\'s use_GNSS_time) and calibrate again.')
+                     f'vary by about {jitter_ms} ms, as when a driver stamps each fix on '
+                     'arrival rather than at the receiver\'s epoch. The fixes were smoothed '
+                     'along their path, up to a second either side (what is left adds '
+                     'centimetres along the travel). Stamp the fixes with the receiver\'s time '
+                     '(e.g. nmea_navsat_driver\'s use_GNSS_time) and calibrate again.')
     jumps = recording.counters.get('fix_jumps', 0)
     if jumps:
         c = recording.counters

@@ -958,6 +958,9 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
 #: ``_JITTER_ANISOTROPY`` times that across it, and amounts to ``_JITTER_MIN_S`` of their
 #: stamps (1 sigma, robust).
 _JITTER_HALF_SPAN_S = 1.0
+#: (at most this many fixes either side: a 100 Hz stream's 201-fix windows cost seconds,
+#: and 41 fixes average its scatter as well as 41 over +-1 s at 20 Hz)
+_JITTER_MAX_HALF_FIXES = 20
 _JITTER_MIN_SPEED_MPS = 3.0
 _JITTER_ANISOTROPY = 3.0
 _JITTER_MIN_S = 0.01
@@ -992,7 +995,7 @@ def _stamp_jitter(t: F64, positions: F64) -> tuple[F64, float, float] | None:
     interval = float(np.median(np.diff(t)))
     if interval <= 0.0 or interval > _FIX_STEP_MAX_INTERVAL_S:
         return None
-    m = max(2, int(round(_JITTER_HALF_SPAN_S / interval)))
+    m = min(max(2, int(round(_JITTER_HALF_SPAN_S / interval))), _JITTER_MAX_HALF_FIXES)
     k = 2 * m + 1
     if n < 4 * k:
         return None

@@ -436,13 +436,11 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     tied = [c for c in eligible if c.mean_angle_deg <= best_angle + cfg.angle_tie_deg]
     accepted = min(tied, key=lambda c: (-c.n_passes, _rms(c), c.mean_angle_deg))
     assert accepted.fit is not None
-    rivals = tuple(sorted(
-        (float(np.hypot(*(c.fit.translation_m[:2] - accepted.fit.translation_m[:2]))),
-         c.n_passes) for c in eligible
-        if c is not accepted and c.fit is not None
-        and c.n_passes >= accepted.n_passes - _RIVAL_PASSES_BEHIND
-        and np.hypot(*(c.fit.translation_m[:2] - accepted.fit.translation_m[:2]))
-        > _RIVAL_EPS_FACTOR * cfg.eps_m))
+    others = [(float(np.hypot(*(c.fit.translation_m[:2] - accepted.fit.translation_m[:2]))),
+               c.n_passes) for c in eligible if c is not accepted and c.fit is not None]
+    rivals = tuple(sorted((d, n) for d, n in others
+                          if n >= accepted.n_passes - _RIVAL_PASSES_BEHIND
+                          and d > _RIVAL_EPS_FACTOR * cfg.eps_m))
     accepted_ids = tuple(int(hyps[i].track_id) for i in accepted.core)
     extrinsics = Extrinsics(accepted.fit.rotation @ ground.rotation_level,
                             accepted.fit.translation_m, 0.0)
