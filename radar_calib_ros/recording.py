@@ -895,15 +895,11 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
     if t.size < 2 * k + 1:
         return none
     q = positions[:, :2] if twist is None else positions[:, :2] - _travelled(t, twist)
-    tw = np.lib.stride_tricks.sliding_window_view(t, k)
-    qw = np.lib.stride_tricks.sliding_window_view(q, k, axis=0).transpose(0, 2, 1)  # (m, k, 2)
     # a parabola through each window: constant acceleration (braking, a turn) leaves none
     # of itself in the jump, as a line would (4-5 cm at 3-8 m/s^2)
+    tw = np.lib.stride_tricks.sliding_window_view(t, k)
     t_mean = tw.mean(axis=1)
-    dt = tw - t_mean[:, None]
-    design = np.stack([np.ones_like(dt), dt, dt ** 2], axis=2)  # (m, k, 3)
-    coef = np.linalg.solve(np.einsum('mki,mkj->mij', design, design),
-                           np.einsum('mki,mkd->mid', design, qw))  # (m, 3, 2)
+    qw, design, coef = _window_quadratics(t, q, k, t_mean)
     misfit = np.sqrt(np.mean(np.sum((qw - design @ coef) ** 2, axis=2), axis=1))
     # interval i (fixes i, i+1): the window ending at fix i against the one starting at i+1
     i = np.arange(k - 1, t.size - k)
@@ -1000,11 +996,7 @@ def _stamp_jitter(t: F64, positions: F64) -> tuple[F64, float, float] | None:
     if n < 4 * k:
         return None
     tw = np.lib.stride_tricks.sliding_window_view(t, k)
-    pw = np.lib.stride_tricks.sliding_window_view(positions, k, axis=0).transpose(0, 2, 1)
-    dt = tw - tw[:, m:m + 1]
-    design = np.stack([np.ones_like(dt), dt, dt ** 2], axis=2)  # (w, k, 3)
-    coef = np.linalg.solve(np.einsum('wki,wkj->wij', design, design),
-                           np.einsum('wki,wkd->wid', design, pw))  # (w, 3, d)
+    _, _, coef = _window_quadratics(t, positions, k, tw[:, m])
     centre = np.arange(m, n - m)
     # a window across an outage measures nothing
     whole = tw[:, -1] - tw[:, 0] <= 2.0 * (k - 1) * interval
@@ -1024,6 +1016,21 @@ def _stamp_jitter(t: F64, positions: F64) -> tuple[F64, float, float] | None:
     smoothed = np.array(positions, float, copy=True)
     smoothed[centre[whole]] = value[whole]
     return smoothed, sigma_along, spread_s
+
+
+def _window_quadratics(t: F64, values: F64, k: int, origin: F64
+                       ) -> tuple[F64, F64, F64]:
+    """A quadratic in time fitted (least squares) to each run of ``k`` consecutive samples
+    of ``values`` (n, d) at times ``t`` (n,), time counted from the window's ``origin``
+    (n - k + 1,): the windows' values (w, k, d), design (w, k, 3) and coefficients
+    (w, 3, d) (value, rate, half the acceleration at the origin)."""
+    tw = np.lib.stride_tricks.sliding_window_view(t, k)
+    vw = np.lib.stride_tricks.sliding_window_view(values, k, axis=0).transpose(0, 2, 1)
+    dt = tw - origin[:, None]
+    design = np.stack([np.ones_like(dt), dt, dt ** 2], axis=2)
+    coef = np.linalg.solve(np.einsum('wki,wkj->wij', design, design),
+                           np.einsum('wki,wkd->wid', design, vw))
+    return vw, design, coef
 
 
 def _shared_stamps(fixes: F64, first: I64) -> int:
@@ -1540,9 +1547,8 @@ def _heading_offset(heading: F64, courses: list[F64], counters: Counter[str],
             medians = np.asarray(ndimage.median(rs, labels=label, index=used), float)
             offset = float(np.median(medians))
             # standard error of a median: 1.25 sigma / sqrt(n), sigma from the bins' MAD
-            spread = 1.4826 * float(np.median(np.abs(medians - offset)))
-            threshold = max(_HEADING_OFFSET_STRAIGHT_MIN_RAD,
-                            _HEADING_OFFSET_SE * 1.2533 * spread / math.sqrt(used.size))
+            threshold = max(_HEADING_OFFSET_STRAIGHT_MIN_RAD, _HEADING_OFFSET_SE * 1.2533
+                            * _robust_sigma(medians) / math.sqrt(used.size))
     if abs(offset) < threshold:
         return 0.0
     counters['odometry_heading_offset_cdeg'] = int(round(100.0 * math.degrees(offset)))

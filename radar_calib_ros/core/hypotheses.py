@@ -143,9 +143,7 @@ def facing_radar(corr: Correspondences, config: CalibConfig, keep_better: bool,
     if keep_better:
         # in this order of preference: another must fit a millimetre better (a straight
         # pass far off the boresight can fit its nearest point as exactly as its centre)
-        variants = [corr, facing_radar(corr, config, False)]
-        if _long(config):
-            variants.append(facing_radar(corr, config, False, nearest=True))
+        variants = reflection_variants(corr, config)
         cost = [registration.fit_yaw_translation(c.source_m, c.target_m).rms_m
                 + _PREFERENCE_M * i for i, c in enumerate(variants)]
         return variants[int(np.argmin(cost))]
@@ -172,6 +170,15 @@ def facing_radar(corr: Correspondences, config: CalibConfig, keep_better: bool,
     faces = centre.copy()
     faces[:, :2] = vehicle_to_world(offset, centre, corr.yaw_rad)
     return replace(corr, target_m=faces)
+
+
+def reflection_variants(corr: Correspondences, config: CalibConfig) -> list[Correspondences]:
+    """The track's centre correspondences, moved to the faces facing the radar, and (for a
+    long vehicle) to its nearest point: where ``facing_radar`` lets the vehicle reflect."""
+    variants = [corr, facing_radar(corr, config, keep_better=False)]
+    if _long(config):
+        variants.append(facing_radar(corr, config, keep_better=False, nearest=True))
+    return variants
 
 
 #: How much better [m RMS] a later variant of ``facing_radar`` must fit a track, and the
@@ -415,12 +422,9 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     # each cluster judged with the vehicle reflecting from inside its footprint, from its
     # faces and from its point nearest the radar (see facing_radar): the one that keeps
     # more passes, then fits better
-    centred = track_correspondences(hyp_tracks, recording, config)
-    variants = [{c.track_id: c for c in centred},
-                {c.track_id: facing_radar(c, config, keep_better=False) for c in centred}]
-    if _long(config):
-        variants.append({c.track_id: facing_radar(c, config, keep_better=False, nearest=True)
-                         for c in centred})
+    per_track = [reflection_variants(c, config)
+                 for c in track_correspondences(hyp_tracks, recording, config)]
+    variants = [{v[i].track_id: v[i] for v in per_track} for i in range(len(per_track[0]))]
     clusters = [min((_cluster_core(int(label), np.flatnonzero(labels == label), hyps,
                                    hyp_tracks, corrs, recording, config)
                      for corrs in variants),
