@@ -411,13 +411,22 @@ def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
                      f'the vehicle\'s{setting}: if their clocks differ (GPS, UTC or TAI time, '
                      'or no time sync), set sync.time_offset to about '
                      f'{-offset_ms / 1000:.1f}.')
+    rejoined = counters.get('radar_stamps_rejoined', 0)
     if jump_ms is not None:
         digits = 1 if abs(jump_ms) >= 1000 else 2
         at_s = counters.get('radar_stamp_jump_at_ms', 0) / 1000
-        notes.append(f'The radar\'s header stamps jump by {jump_ms / 1000:+.{digits}f} s against '
-                     f'the recording\'s clock {at_s:.0f} s after its first message (a clock '
-                     'that lost its sync?): the frames on one side of the jump are paired with '
-                     'the wrong poses or none.')
+        said = (f'The radar\'s header stamps jump by {jump_ms / 1000:+.{digits}f} s against '
+                f'the recording\'s clock {at_s:.0f} s after its first message')
+        if rejoined:
+            side = ('after' if counters.get('radar_stamps_rejoined_later') else 'before')
+            other = 'before' if side == 'after' else 'after'
+            notes.append(f'{said} (a radar that rebooted, or a clock that lost its sync): the '
+                         f'{rejoined} frames {side} the jump were moved by it onto the clock '
+                         f'{other} it (the one nearer the vehicle\'s), so that one clock offset '
+                         'holds throughout. Check the radar\'s time sync.')
+        else:
+            notes.append(f'{said} (a clock that lost its sync?): the frames on one side of the '
+                         'jump are paired with the wrong poses or none.')
     return notes + _outside_poses_notes(recording, config, name_jump=jump_ms is None)
 
 

@@ -390,6 +390,9 @@ class RecordingBuilder:
         joined = self._joined_restarts()
         if joined is not None:
             return joined.build()
+        rejoined = self._rejoined_radar_clock()
+        if rejoined is not None:
+            return rejoined.build()
         order = self._without_copies(
             np.argsort(np.asarray(self._frame_stamps, np.int64), kind='stable'))
         frame_stamps = np.asarray(self._frame_stamps, np.int64)[order]
@@ -417,11 +420,7 @@ class RecordingBuilder:
         # there are any: their receipts are the ones to judge the radar's stamps by (an
         # Odometry on a clock of its own, a node without use_sim_time, had the tool advise
         # a sync.time_offset of 1.76e9 s for a radar on the fixes' clock).
-        pose_lag = np.asarray(self._pose_lag, np.int64)
-        pose_received = np.asarray(self._pose_received, np.int64)
-        from_fixes = np.asarray(self._pose_is_fix, bool)
-        if from_fixes.any():
-            pose_lag, pose_received = pose_lag[from_fixes], pose_received[from_fixes]
+        pose_lag, pose_received = self._judging_pose_receipts()
         counters.update(_receipt_checks(np.asarray(self._radar_lag, np.int64),
                                         np.asarray(self._radar_received, np.int64),
                                         pose_lag, pose_received))
@@ -433,6 +432,63 @@ class RecordingBuilder:
         return Recording(frame_stamps, targets, vehicle, frame,
                          radar_frame_id=self._config.radar.frame_id, counters=counters,
                          fix_sigma_m=self._fix_sigma())
+
+    def _judging_pose_receipts(self) -> tuple[I64, I64]:
+        """(lag, received) of the pose messages the radar's stamps are judged by: the fixes'
+        where there are any (the poses' positions come from them), else the Odometry's."""
+        pose_lag = np.asarray(self._pose_lag, np.int64)
+        pose_received = np.asarray(self._pose_received, np.int64)
+        from_fixes = np.asarray(self._pose_is_fix, bool)
+        if from_fixes.any() and from_fixes.size == pose_lag.size:
+            pose_lag, pose_received = pose_lag[from_fixes], pose_received[from_fixes]
+        return pose_lag, pose_received
+
+    def _rejoined_radar_clock(self) -> RecordingBuilder | None:
+        """A copy with the radar's header stamps on one side of a lasting step of its clock
+        (``_RECEIPT_OFFSET_S`` or more, the radar's alone) moved by the step, else None.
+
+        Why: a radar that reboots or loses its time sync mid-recording stamps the frames
+        after it seconds off the ones before (an independent probe: +3 s at 560 s of 25
+        minutes). Left so, the passes on one side were paired with poses 3 s off: 10 of 16
+        drives went unused, blamed on traffic, and with a small constant offset on top the
+        passes after the step, 36 m off, were taken for a second vehicle keeping pace (a
+        'convoy', exit 1). The recorder's clock, one for every stream, shows the step to a
+        few milliseconds (the receipt lag's medians on either side); the side whose stamps
+        lie farther from the poses' is moved onto the other's clock, so one clock offset,
+        which the fit still finds, holds throughout. A step of the recorder's own clock
+        moves the poses' receipt lag alike and is left alone, and so are steps under a
+        second: a transport latency that settles higher cannot be told from them, and
+        there the fit's clock offset and drift absorb what is left.
+        """
+        if len(self._radar_lag) != len(self._frame_stamps) or len(self._frame_stamps) < 2:
+            return None
+        radar_lag = np.asarray(self._radar_lag, np.int64)
+        radar_received = np.asarray(self._radar_received, np.int64)
+        pose_lag, pose_received = self._judging_pose_receipts()
+        step = _radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)
+        if step is None:
+            return None
+        later, before_ns, after_ns = step
+        # move the side whose lag is farther from the poses' onto the other's clock
+        pose_ns = float(np.median(pose_lag)) if pose_lag.size else before_ns
+        move_later = abs(after_ns - pose_ns) >= abs(before_ns - pose_ns)
+        moved = later if move_later else ~later
+        shift = int(round(after_ns - before_ns)) * (1 if move_later else -1)
+        copy = self.snapshot()
+        copy._frame_stamps = list(np.asarray(self._frame_stamps, np.int64) + shift * moved)
+        copy._radar_lag = list(radar_lag - shift * moved)
+        order = np.argsort(radar_received, kind='stable')
+        first_later = int(order[np.flatnonzero(later[order])[0]])
+        copy.counters['radar_stamp_jump_ms'] = int(round(-(after_ns - before_ns) / 1e6))
+        copy.counters['radar_stamp_jump_at_ms'] = int(
+            (radar_received[first_later] - radar_received.min()) // 10**6)
+        copy.counters['radar_stamps_rejoined'] = int(moved.sum())
+        copy.counters['radar_stamps_rejoined_later'] = int(move_later)
+        _LOG.warning('the radar\'s header stamps jump by %+.1f s against the recorder\'s clock: '
+                     'the %d frames %s it were moved onto the clock %s it',
+                     -(after_ns - before_ns) * 1e-9, int(moved.sum()),
+                     'after' if move_later else 'before', 'before' if move_later else 'after')
+        return copy
 
     def _joined_restarts(self) -> RecordingBuilder | None:
         """A copy with the stamps after a restart of every stream's clock moved after the
@@ -674,6 +730,7 @@ class RecordingBuilder:
         if stamps.size < 2:
             raise InsufficientDataError('read', f'only {stamps.size} vehicle pose(s)')
         t = (stamps - stamps[0]) * 1e-9
+        raw_positions = positions
         if self._fixes and status_rtk:
             jitter = _stamp_jitter(t, positions)
             if jitter is not None:
@@ -784,11 +841,14 @@ class RecordingBuilder:
         # (smoothed fixes keep a few centimetres of their scatter, correlated over the
         # smoothing span: what the jumps are told from; the scatter is named instead)
         jittered = bool(self.counters.get('fix_stamp_jitter_ms'))
-        if (status_rtk or from_odometry) and not jittered and stamps.size == t.size:
+        if (status_rtk or from_odometry) and stamps.size == t.size:
             # (not where the Odometry's samples were added between slow fixes)
             twist = (velocities if odoms and not self.counters.get('odometry_twist_replaced')
                      else None)
-            steps = _fix_steps(t, positions, twist)
+            # jittered fixes are smoothed by now: the jumps are searched in the fixes
+            # as stamped, across the travel only
+            steps = _fix_steps(t, raw_positions if jittered else positions, twist,
+                               across_only=jittered)
             if steps.times_s.size and from_odometry:
                 self.counters['fix_jumps_in_odometry'] = 1
             if steps.times_s.size:
@@ -865,7 +925,8 @@ class FixSteps:
     dropped: np.ndarray
 
 
-def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
+def _fix_steps(t: F64, positions: F64, twist: F64 | None,
+               across_only: bool = False) -> FixSteps:
     """The jumps of fixes (n,) sorted by time, and the stretches between them taken as RTK
     float.
 
@@ -881,7 +942,10 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
     jump missed (a float stretch that began where its error was small) flips the
     alternation after it; where that leaves no clearly smaller share, nothing is dropped,
     only said (on the eleventh probe's recordings about 97 % of the dropped fixes were
-    float).
+    float). ``across_only``: fixes whose stamps scatter (``_stamp_jitter``) scatter along
+    the travel by decimetres, which would hide any jump there; across it they stay exact,
+    so only the jumps' part across the travel is measured (a false fix of 0.7-1 m over a
+    pass, missed in a sixteenth probe's jittered fixes: 0.13-0.78 m off).
     """
     none = FixSteps(np.empty(0), np.empty(0), np.zeros(t.size, bool))
     if t.size < 2:
@@ -901,6 +965,14 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
     t_mean = tw.mean(axis=1)
     qw, design, coef = _window_quadratics(t, q, k, t_mean)
     misfit = np.sqrt(np.mean(np.sum((qw - design @ coef) ** 2, axis=2), axis=1))
+    if across_only:
+        # the travel's direction in each window from the fixes themselves (their scatter
+        # is along it); what is measured is what lies across it
+        _, _, path = _window_quadratics(t, positions[:, :2], k, t_mean)
+        normal = path[:, 1, ::-1] * np.array([-1.0, 1.0])
+        normal /= np.maximum(np.hypot(normal[:, 0], normal[:, 1]), 1e-9)[:, None]
+        misfit = np.sqrt(np.mean(np.einsum('wkd,wd->wk', qw - design @ coef, normal) ** 2,
+                                 axis=1))
     # interval i (fixes i, i+1): the window ending at fix i against the one starting at i+1
     i = np.arange(k - 1, t.size - k)
     before, after = i - k + 1, i + 1
@@ -914,8 +986,14 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None) -> FixSteps:
         return coef[w, 1] + 2.0 * coef[w, 2] * (mid - t_mean[w])[:, None]
 
     jump = at_mid(after) - at_mid(before)
+    rate_change = rate_at_mid(after) - rate_at_mid(before)
+    if across_only:
+        across = normal[before] + normal[after]
+        across /= np.maximum(np.hypot(across[:, 0], across[:, 1]), 1e-9)[:, None]
+        jump = across * np.einsum('ij,ij->i', jump, across)[:, None]
+        rate_change = across * np.einsum('ij,ij->i', rate_change, across)[:, None]
     # a jump of the position leaves the velocity as it was
-    steady = np.hypot(*(rate_at_mid(after) - rate_at_mid(before)).T) <= _FIX_STEP_RATE_MPS
+    steady = np.hypot(*rate_change.T) <= _FIX_STEP_RATE_MPS
     # A window across a gap (an outage, fixes already left out) measures no jump, nor one
     # that no parabola fits, nor a pair whose velocities differ: a step of the velocity (a
     # simulator's car stopping dead) bends the windows that straddle it, while either side
@@ -1300,6 +1378,49 @@ _RECEIPT_OFFSET_S = 1.0
 _RECEIPT_WINDOW = 15
 
 
+def _radar_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
+                      pose_received: I64 | None = None) -> tuple[np.ndarray, float, float] | None:
+    """(messages after the step, median lag before, after [ns]) of the largest lasting step,
+    ``_RECEIPT_OFFSET_S`` or more, of the radar stamps' receipt lag that the poses' lag does
+    not share, or None. Messages near the step (in flight when it came) go to the side
+    whose median lag their own is nearer."""
+    w = _RECEIPT_WINDOW
+    if radar_lag.size < 2 * w:
+        return None
+    order = np.argsort(radar_received, kind='stable')
+    lag = radar_lag[order].astype(np.float64)
+    smooth = ndimage.median_filter(lag, size=w, mode='nearest')
+    change = np.diff(smooth)
+    k = int(np.argmax(np.abs(change))) + 1
+    if abs(change[k - 1]) <= _RECEIPT_OFFSET_S * 1e9:
+        return None
+    before, after = float(np.median(lag[:k])), float(np.median(lag[k:]))
+    if abs(after - before) <= _RECEIPT_OFFSET_S * 1e9:
+        return None
+    if _pose_lag_stepped(pose_lag, pose_received, radar_received[order][k], after - before):
+        return None
+    later_ordered = np.zeros(lag.size, bool)
+    later_ordered[k:] = True
+    near = slice(max(0, k - w), min(lag.size, k + w))
+    later_ordered[near] = np.abs(lag[near] - after) < np.abs(lag[near] - before)
+    later = np.zeros(lag.size, bool)
+    later[order] = later_ordered
+    return later, before, after
+
+
+def _pose_lag_stepped(pose_lag: I64, pose_received: I64 | None, at_ns: int,
+                      step_ns: float) -> bool:
+    """Whether the poses' receipt lag steps alike (within half) at ``at_ns``: the
+    recorder's own clock moved, not the radar's."""
+    if pose_received is None or pose_received.size != pose_lag.size:
+        return False
+    before = pose_received < at_ns
+    if before.sum() < _RECEIPT_WINDOW or (~before).sum() < _RECEIPT_WINDOW:
+        return False
+    pose_step = float(np.median(pose_lag[~before]) - np.median(pose_lag[before]))
+    return abs(pose_step - step_ns) < 0.5 * abs(step_ns)
+
+
 def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
                     pose_received: I64 | None = None) -> dict[str, int]:
     """Counters from the receipt lags (received - header stamp, ns, in received order): the
@@ -1315,14 +1436,13 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
         return out
     offset_ns = float(np.median(pose_lag) - np.median(radar_lag))
     out['radar_stamp_offset_ms'] = int(round(offset_ns / 1e6))
-    smooth = ndimage.median_filter(radar_lag.astype(np.float64), size=_RECEIPT_WINDOW,
-                                   mode='nearest')
-    step = np.diff(smooth)
-    k = int(np.argmax(np.abs(step)))
-    if abs(step[k]) > _RECEIPT_OFFSET_S * 1e9:
+    step = _radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)
+    if step is not None:
+        later, before, after = step
         # a lag that drops is a stamp that jumps forward
-        out['radar_stamp_jump_ms'] = int(round(-step[k] / 1e6))
-        out['radar_stamp_jump_at_ms'] = int((radar_received[k + 1] - radar_received[0]) // 10**6)
+        out['radar_stamp_jump_ms'] = int(round(-(after - before) / 1e6))
+        out['radar_stamp_jump_at_ms'] = int(
+            (radar_received[later].min() - radar_received.min()) // 10**6)
         return out
     step_at = _small_clock_step(radar_lag, radar_received, pose_lag, pose_received)
     if step_at is not None:
@@ -1360,12 +1480,8 @@ def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
     step = float(np.median(lag[k:]) - np.median(lag[:k]))
     if abs(step) < _RECEIPT_STEP_S * 1e9:
         return None
-    if pose_received is not None and pose_received.size == pose_lag.size:
-        before = pose_received < radar_received[k]
-        if before.sum() >= w and (~before).sum() >= w:
-            pose_step = float(np.median(pose_lag[~before]) - np.median(pose_lag[before]))
-            if abs(pose_step - step) < 0.5 * abs(step):
-                return None
+    if _pose_lag_stepped(pose_lag, pose_received, int(radar_received[k]), step):
+        return None
     # a lag that drops is a stamp that jumps forward
     return int(round(-step / 1e6)), int((radar_received[k] - radar_received[0]) // 10**6)
 
