@@ -55,7 +55,10 @@ class Recording:
     counters : received / dropped counts by reason (e.g. ``fixes_no_fix``);
     fix_sigma_m : median 1-sigma (horizontal, vertical) the vehicle's fixes declare in their
         ``position_covariance`` [m], None when none declares one (``pose_sigma_m`` then
-        assumes one).
+        assumes one);
+    radar_clock_later : (f,) True for the frames received after a step of the radar's
+        clock under a second that the recorder's clock saw (``_small_clock_step``; the
+        pipeline moves them once the passes confirm it), None without one.
     """
 
     frame_stamps_ns: I64
@@ -65,6 +68,7 @@ class Recording:
     radar_frame_id: str = 'radar'
     counters: dict[str, int] = field(default_factory=dict)
     fix_sigma_m: tuple[float, float] | None = None
+    radar_clock_later: np.ndarray | None = None
 
     @property
     def pose_sigma_m(self) -> tuple[float, float]:
@@ -424,6 +428,14 @@ class RecordingBuilder:
         counters.update(_receipt_checks(np.asarray(self._radar_lag, np.int64),
                                         np.asarray(self._radar_received, np.int64),
                                         pose_lag, pose_received))
+        clock_later = None
+        if ('radar_stamp_jump_ms' in counters and len(self._radar_lag) == len(self._frame_stamps)):
+            small = _small_clock_step(np.asarray(self._radar_lag, np.int64),
+                                      np.asarray(self._radar_received, np.int64),
+                                      pose_lag, pose_received)
+            if small is not None:
+                clock_later = np.zeros(frame_stamps.size, bool)
+                np.logical_or.at(clock_later, message_frame.ravel(), small[2][order])
         merged = int(order.size - frame_stamps.size)
         if merged:
             counters['radar_messages_merged'] = merged
@@ -431,7 +443,7 @@ class RecordingBuilder:
                          'stamp is taken as one scan (%d scans)', merged, frame_stamps.size)
         return Recording(frame_stamps, targets, vehicle, frame,
                          radar_frame_id=self._config.radar.frame_id, counters=counters,
-                         fix_sigma_m=self._fix_sigma())
+                         fix_sigma_m=self._fix_sigma(), radar_clock_later=clock_later)
 
     def _judging_pose_receipts(self) -> tuple[I64, I64]:
         """(lag, received) of the pose messages the radar's stamps are judged by: the fixes'
@@ -1446,7 +1458,7 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
         return out
     step_at = _small_clock_step(radar_lag, radar_received, pose_lag, pose_received)
     if step_at is not None:
-        out['radar_stamp_jump_ms'], out['radar_stamp_jump_at_ms'] = step_at
+        out['radar_stamp_jump_ms'], out['radar_stamp_jump_at_ms'], _ = step_at
     return out
 
 
@@ -1457,9 +1469,9 @@ _RECEIPT_STEP_S = 0.15
 
 
 def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
-                      pose_received: I64 | None) -> tuple[int, int] | None:
-    """(jump [ms], when [ms after the first radar message]) of a lasting step of the radar
-    stamps' receipt lag below a second, or None.
+                      pose_received: I64 | None) -> tuple[int, int, np.ndarray] | None:
+    """(jump [ms], when [ms after the first radar message], the messages after it) of a
+    lasting step of the radar stamps' receipt lag below a second, or None.
 
     Why: an NTP correction steps the radar's clock by tenths of a second; the passes on one
     side are then paired with poses that far off, the clock offset the fit finds is a blend,
@@ -1471,19 +1483,27 @@ def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
     w = _RECEIPT_STEP_WINDOW
     if radar_lag.size < 2 * w:
         return None
-    lag = radar_lag.astype(np.float64)
+    order = np.argsort(radar_received, kind='stable')
+    lag, received = radar_lag[order].astype(np.float64), radar_received[order]
     smooth = ndimage.median_filter(lag, size=w, mode='nearest')
     h = w // 2
     change = smooth[2 * h:] - smooth[:-2 * h]
     k = int(np.argmax(np.abs(change))) + h
     k = min(max(k, w), lag.size - w)
-    step = float(np.median(lag[k:]) - np.median(lag[:k]))
+    before, after = float(np.median(lag[:k])), float(np.median(lag[k:]))
+    step = after - before
     if abs(step) < _RECEIPT_STEP_S * 1e9:
         return None
-    if _pose_lag_stepped(pose_lag, pose_received, int(radar_received[k]), step):
+    if _pose_lag_stepped(pose_lag, pose_received, int(received[k]), step):
         return None
+    # messages in flight around the step go to the side their own lag is nearer
+    later_ordered = np.arange(lag.size) >= k
+    near = slice(max(0, k - w), min(lag.size, k + w))
+    later_ordered[near] = np.abs(lag[near] - after) < np.abs(lag[near] - before)
+    later = np.zeros(lag.size, bool)
+    later[order] = later_ordered
     # a lag that drops is a stamp that jumps forward
-    return int(round(-step / 1e6)), int((radar_received[k] - radar_received[0]) // 10**6)
+    return (int(round(-step / 1e6)), int((received[k] - received[0]) // 10**6), later)
 
 
 def _unaugmented_stretches(stamps_ns: I64, status: F64) -> dict[str, int]:

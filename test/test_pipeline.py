@@ -103,6 +103,8 @@ def test_the_odometry_late_note_only_when_the_radar_follows_the_fixes() -> None:
     assert pipeline._odometry_late_note(recording(-500), 0.003) is None
     assert pipeline._odometry_late_note(recording(300), -0.001) is None
     assert pipeline._odometry_late_note(recording(0), 0.3) is None
+    # a radar 150 ms late beside fixes 55 ms late: on no one's clock
+    assert pipeline._odometry_late_note(recording(55), -0.1505) is None
 
 
 def test_no_agreement_anywhere_or_no_offset_estimation_keeps_the_reason(
@@ -523,3 +525,34 @@ def test_a_rival_group_of_tracks_refuses_the_calibration(
     monkeypatch.setattr(pipeline, '_hypotheses', lambda *a, **k: ([], clear))
     assert pipeline._stages_4_to_6(_NO_LAG, None, CalibConfig(),  # type: ignore[arg-type]
                                    pipeline._StageClock())[-1] is clear
+
+
+def test_a_small_clock_step_the_passes_confirm_is_rejoined() -> None:
+    """An NTP step of 0.3 s that the recorder's clock saw, and that the final fit's passes
+    show as large at that time, is a wrong clock, not a late one: the frames after it are
+    moved onto the clock before it (the calibration then runs again on all passes). A fit
+    that shows another step, or one elsewhere, moves nothing."""
+    import types
+
+    # the recording of the receipt-lag test: 120 s, radar stamps 0.3 s later after 60 s
+    from test_recording import T0, _radar_clock_stepping
+    rec = _radar_clock_stepping(0.0, 0.3).build()
+    assert rec.radar_clock_later is not None
+
+    def fitted(step_ms: float, at_s: float) -> Any:
+        diagnostics = {'clock_step_ms': step_ms, 'clock_step_at_s': at_s,
+                       'clock_step_window_s': 5.0, 'clock_step_offsets_s': [0.0, step_ms / 1e3]}
+        return types.SimpleNamespace(refinement=types.SimpleNamespace(diagnostics=diagnostics))
+
+    rejoined = pipeline._rejoined_clock_step(rec, fitted(-295.0, 58.0))
+    assert rejoined is not None
+    t_radar = (rejoined.frame_stamps_ns - T0) * 1e-9
+    assert np.abs(t_radar - np.arange(t_radar.size) / 15).max() < 0.01
+    assert rejoined.counters['radar_stamps_rejoined'] == 900
+    assert np.all(np.diff(rejoined.frame_stamps_ns) > 0)
+    assert np.array_equal(rejoined.targets.frame_index, rec.targets.frame_index)
+    notes = pipeline._clock_notes(rejoined, CalibConfig())
+    assert any('the 900 frames after the jump were moved' in n for n in notes), notes
+    assert pipeline._rejoined_clock_step(rec, fitted(-150.0, 58.0)) is None   # not as large
+    assert pipeline._rejoined_clock_step(rec, fitted(-300.0, 300.0)) is None  # not then
+    assert pipeline._rejoined_clock_step(rejoined, fitted(-295.0, 58.0)) is None

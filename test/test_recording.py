@@ -1203,6 +1203,10 @@ def test_a_step_of_the_radar_clock_alone_is_rejoined_on_the_poses_side() -> None
     assert 'radar_stamps_rejoined' not in small.counters
     assert small.counters['radar_stamp_jump_ms'] == pytest.approx(300, abs=20)
     assert np.abs(radar_minus_pose_s(small)[-100:] - 0.3).max() < 0.01
+    # ... with the frames after it marked, for the pipeline to move once the passes agree
+    assert small.radar_clock_later is not None
+    assert np.array_equal(np.flatnonzero(small.radar_clock_later), np.arange(900, 1800))
+    assert later.radar_clock_later is None and recorder.radar_clock_later is None
 
 
 @pytest.mark.parametrize('heading_rad', [0.0, math.pi, -math.pi / 2])

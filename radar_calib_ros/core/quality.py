@@ -136,6 +136,8 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         extra['refinement_passes'] = int(refinement.n_passes)
         if 'clock_drift_ppm' in refinement.diagnostics:
             extra['clock_drift_ppm'] = round(float(refinement.diagnostics['clock_drift_ppm']), 1)
+        if 'clock_step_ms' in refinement.diagnostics:
+            extra['clock_step_ms'] = round(float(refinement.diagnostics['clock_step_ms']), 1)
         if 'azimuth_noise_deg' in refinement.diagnostics:
             extra['azimuth_noise_deg'] = round(
                 float(refinement.diagnostics['azimuth_noise_deg']), 2)

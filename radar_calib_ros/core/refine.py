@@ -270,7 +270,7 @@ class _Times:
         frames, inverse = np.unique(recording.targets.frame_index[index], return_inverse=True)
         frame_t = (recording.frame_stamps_ns[frames] - t0_ns) * 1e-9 + sync_offset_s
         if drift is not None:
-            frame_t = frame_t + drift.rate * (frame_t - drift.reference_s)
+            frame_t = frame_t + drift.offset_change_s(frame_t)
         return cls(frame_t, inverse.ravel())
 
     @property
@@ -292,13 +292,26 @@ class _Times:
 
 @dataclass(frozen=True, slots=True)
 class ClockDrift:
-    """A radar clock running at its own rate against the poses': the offset at radar time
-    t (seconds since the first pose) is tau + rate * (t - reference_s), tau the fitted
-    offset at ``reference_s``, the middle of the radar's frames."""
+    """A radar clock running at its own rate against the poses', or one that stepped: the
+    offset at radar time t (seconds since the first pose) is tau + rate * (t - reference_s)
+    + step_s * ([t >= step_at_s] - [reference_s >= step_at_s]), tau the fitted offset at
+    ``reference_s`` (for a drift the middle of the radar's frames, for a step a time on
+    the side with the more passes' information)."""
 
     rate: float
     reference_s: float
     sigma: float
+    step_s: float = 0.0
+    step_at_s: float = math.inf
+    step_window_s: float = 0.0   # half the gap between the passes around the step
+
+    def offset_change_s(self, t_s: F64) -> F64:
+        """(n,) the offset at radar times ``t_s`` minus the offset at ``reference_s``."""
+        change = self.rate * (t_s - self.reference_s)
+        if self.step_s:
+            change = change + self.step_s * (
+                (t_s >= self.step_at_s).astype(float) - float(self.reference_s >= self.step_at_s))
+        return change
 
 
 # --- the model --------------------------------------------------------------------------
@@ -1024,24 +1037,36 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
         # passes' offsets are taken at a fit that has partly followed the drift with its
         # other parameters (the position, where the directions driven change over time), so
         # they show less of it than there is: what they still show is added, a few times.
+        # A clock that stepped between two passes (``_clock_step``) is tested first: a
+        # straight line drawn through a step misplaces every pass but the middle ones.
         drift: ClockDrift | None = None
         reference_s = _mid_recording_s(recording, config)
         for _ in range(_DRIFT_REFITS):
-            # once a drift is found, what is left of it is estimated, not tested for again
-            more = _clock_drift(refinement.diagnostics.get('pass_time_offsets', []),
-                                reference_s, found=drift is not None)
-            if more is None or (drift is not None
-                                and abs(more.rate) < _DRIFT_SETTLED * abs(drift.rate)):
+            # once a drift or step is found, what is left of it is estimated, not tested
+            # for again
+            offsets = refinement.diagnostics.get('pass_time_offsets', [])
+            if drift is None:
+                more = (_clock_step(offsets) or _clock_drift(offsets, reference_s))
+            elif drift.step_s:
+                more = _clock_step(offsets, at_s=drift.step_at_s)
+            else:
+                more = _clock_drift(offsets, reference_s, found=True)
+            if more is None or (drift is not None and (
+                    abs(more.rate) < _DRIFT_SETTLED * abs(drift.rate) if not drift.step_s
+                    else abs(more.step_s) < _DRIFT_SETTLED * abs(drift.step_s))):
                 break
-            drift = more if drift is None else ClockDrift(drift.rate + more.rate,
-                                                          more.reference_s, more.sigma)
+            drift = more if drift is None else (
+                ClockDrift(drift.rate + more.rate, more.reference_s, more.sigma)
+                if not drift.step_s else
+                ClockDrift(0.0, drift.reference_s, more.sigma, drift.step_s + more.step_s,
+                           drift.step_at_s, drift.step_window_s))
             try:
                 refinement = _refine_checked(initial, recording, tracked, selection, config,
                                              ground_normal, drift)
             except InsufficientDataError:
                 break
-            _LOG.info('radar clock drift %.0f +- %.0f ppm: refitted', 1e6 * drift.rate,
-                      1e6 * drift.sigma)
+            _LOG.info('radar clock drift %.0f +- %.0f ppm, step %.0f ms: refitted',
+                      1e6 * drift.rate, 1e6 * drift.sigma, 1e3 * drift.step_s)
         return refinement
 
 
@@ -1357,7 +1382,24 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         diagnostics['time_offset_held_sigma_s'] = tau_held
     elif estimate_tau:
         diagnostics['pass_time_offsets'] = _pass_time_offsets(pc, data, est.time_offset_s)
-    if drift is not None:
+    if drift is not None and drift.step_s:
+        first_s = _radar_clock_s(recording, config, int(recording.frame_stamps_ns[0]))
+        diagnostics['clock_step_ms'] = 1e3 * drift.step_s
+        diagnostics['clock_step_sigma_ms'] = 1e3 * drift.sigma
+        diagnostics['clock_step_at_s'] = drift.step_at_s - first_s
+        diagnostics['clock_step_window_s'] = drift.step_window_s
+        before = est.time_offset_s - drift.step_s * float(drift.reference_s >= drift.step_at_s)
+        diagnostics['clock_step_offsets_s'] = [before, before + drift.step_s]
+        diagnostics['advice'] = [
+            f'The radar\'s clock offset against the vehicle\'s stepped by '
+            f'{1000 * drift.step_s:+.0f} ms (+-{1000 * drift.sigma:.0f}) between two passes, '
+            f'about {drift.step_at_s - first_s:.0f} s after the radar\'s first frame: '
+            f'{1000 * before:+.0f} ms before, {1000 * (before + drift.step_s):+.0f} ms after '
+            '(a clock set by NTP or after a reboot, or a driver restarted to stamp otherwise). '
+            'The fit took both (the clock offset reported is the one of the side with the '
+            'more passes). Synchronise the radar\'s clock (PTP or NTP) before recording.',
+            *diagnostics['advice']]
+    elif drift is not None:
         diagnostics['clock_drift_ppm'] = 1e6 * drift.rate
         diagnostics['clock_drift_sigma_ppm'] = 1e6 * drift.sigma
         span = [est.time_offset_s + drift.rate * (_radar_clock_s(recording, config, stamp)
@@ -1517,6 +1559,70 @@ _DRIFT_MIN_RATE = 20e-6
 #: fraction of the rate found.
 _DRIFT_REFITS = 3
 _DRIFT_SETTLED = 0.1
+
+
+#: Clock step: the fewest passes on either side of it, its least size worth a refit [s],
+#: and how much less scatter than a straight line it must leave (a drift is a line).
+_STEP_MIN_SIDE = 2
+_STEP_MIN_S = 0.02
+_STEP_BETTER = 0.5
+
+
+def _clock_step(offsets: list[list[float]], at_s: float | None = None) -> ClockDrift | None:
+    """A step of the radar clock's offset between two passes, from the passes' clock
+    offsets, or None when they show none clearly (or, with ``at_s``, what is left of a
+    step found there before, taken when two standard errors clear of zero).
+
+    Why: a radar whose clock is set by NTP mid-recording, or reboots, or whose driver is
+    restarted to stamp on reception, steps its offset by tens to hundreds of milliseconds.
+    A straight line through the passes' offsets (``_clock_drift``) then misplaces the
+    passes at both ends and names a drift that is not there (a sixteenth probe: +0.15 s at
+    565 s of 25 minutes taken for -91 ppm, delta_op 0.36 m against 0.17). The step is put
+    between the two passes where two constant offsets fit best; it is taken when it leaves
+    less than ``_STEP_BETTER`` of the line's scatter and stands clear of that scatter (a
+    t-test at the drift's false-alarm rate, divided among the places tried).
+    """
+    if len(offsets) < _DRIFT_MIN_PASSES:
+        return None
+    rows = np.array(sorted(offsets), float)
+    t, tau, w = rows[:, 0], rows[:, 1], rows[:, 2] / rows[:, 2].sum()
+    n = t.size
+    splits = (np.arange(_STEP_MIN_SIDE, n - _STEP_MIN_SIDE + 1) if at_s is None
+              else np.array([int(np.searchsorted(t, at_s))]))
+    splits = splits[(splits >= 1) & (splits <= n - 1)]
+    if splits.size == 0:
+        return None
+    cum_w, cum_wt = np.cumsum(w), np.cumsum(w * tau)
+    w_a, w_b = cum_w[splits - 1], 1.0 - cum_w[splits - 1]
+    m_a = cum_wt[splits - 1] / w_a
+    m_b = (cum_wt[-1] - cum_wt[splits - 1]) / w_b
+    side = np.arange(n)[None, :] >= splits[:, None]
+    fitted = np.where(side, m_b[:, None], m_a[:, None])
+    rss = np.sum(w[None, :] * (tau[None, :] - fitted) ** 2, axis=1)
+    k = int(np.argmin(rss))
+    j, step = int(splits[k]), float(m_b[k] - m_a[k])
+    dof = n - 2
+    sigma = math.sqrt(float(rss[k]) / dof * (1.0 / w_a[k] + 1.0 / w_b[k]))
+    at = 0.5 * (t[j - 1] + t[j]) if at_s is None else at_s
+    window = 0.5 * (t[j] - t[j - 1])
+    # the reference on the side with the more information: its offset is the one reported
+    reference = float(t[j:].mean() if w_b[k] > w_a[k] else t[:j].mean())
+    if at_s is not None:
+        if abs(step) < 2.0 * sigma:
+            return None
+        return ClockDrift(0.0, reference, sigma, step, at, window)
+    t_mean = float(np.sum(w * t))
+    spread = float(np.sum(w * (t - t_mean) ** 2))
+    rate = float(np.sum(w * (t - t_mean) * (tau - np.sum(w * tau)))) / max(spread, 1e-12)
+    line_rss = float(np.sum(w * (tau - np.sum(w * tau) - rate * (t - t_mean)) ** 2))
+    critical = float(stats.t.ppf(1.0 - _DRIFT_FALSE_ALARM / (2.0 * splits.size), dof))
+    _LOG.debug('clock step from %d passes: %.1f +- %.1f ms at %.0f s (needs %.1f sigma), '
+               'scatter %.2f of the line\'s', n, 1e3 * step, 1e3 * sigma, at, critical,
+               float(rss[k]) / max(line_rss, 1e-18))
+    if (abs(step) < max(_STEP_MIN_S, critical * sigma)
+            or float(rss[k]) >= _STEP_BETTER * line_rss):
+        return None
+    return ClockDrift(0.0, reference, sigma, step, at, window)
 
 
 def _clock_drift(offsets: list[list[float]], reference_s: float,

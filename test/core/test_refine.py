@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -1078,3 +1079,33 @@ def test_frames_where_another_road_user_hides_the_vehicle_are_left_out() -> None
         tracked.target_index, np.concatenate([scene.tracked.track_id,
                                               np.full(occluders.size, own_track)])))
     assert _run(merged).diagnostics['hidden_targets'] == 0
+
+
+def _pass_offsets(tau_of_t: Any, noise_s: float = 0.004, seed: int = 3) -> list[list[float]]:
+    """Passes every 60 s over 20 minutes with their clock offsets and information."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(30.0, 1200.0, 60.0)
+    tau = np.array([tau_of_t(x) for x in t]) + rng.normal(0.0, noise_s, t.size)
+    return [[float(a), float(b), 1.0 / noise_s ** 2] for a, b in zip(t, tau)]
+
+
+def test_a_clock_step_between_passes_is_told_from_a_drift() -> None:
+    """An NTP correction mid-recording steps the passes' offsets (a sixteenth probe: taken
+    for a -91 ppm drift); a free-running clock drifts them along a line. Each model is
+    found for its own data and not for the other's; steady offsets give neither."""
+    step = _pass_offsets(lambda t: -0.004 if t < 500.0 else -0.15)
+    found = refine._clock_step(step)
+    assert found is not None and found.step_s == pytest.approx(-0.146, abs=0.006)
+    assert 450.0 < found.step_at_s < 540.0 and found.step_window_s == pytest.approx(30.0)
+    # the offset reported is that of the side with the more passes (after the step here)
+    assert found.reference_s > found.step_at_s
+    assert found.offset_change_s(np.array([100.0]))[0] == pytest.approx(0.146, abs=0.006)
+    line = _pass_offsets(lambda t: 150e-6 * (t - 600.0))
+    assert refine._clock_step(line) is None
+    assert refine._clock_drift(line, 600.0) is not None
+    steady = _pass_offsets(lambda t: 0.02)
+    assert refine._clock_step(steady) is None and refine._clock_drift(steady, 600.0) is None
+    # what is left of a step found before is measured where it was
+    left = _pass_offsets(lambda t: 0.0 if t < 500.0 else -0.01, noise_s=0.002)
+    rest = refine._clock_step(left, at_s=found.step_at_s)
+    assert rest is not None and rest.step_s == pytest.approx(-0.01, abs=0.003)
