@@ -489,11 +489,9 @@ class RecordingBuilder:
         copy = self.snapshot()
         copy._frame_stamps = list(np.asarray(self._frame_stamps, np.int64) + shift * moved)
         copy._radar_lag = list(radar_lag - shift * moved)
-        order = np.argsort(radar_received, kind='stable')
-        first_later = int(order[np.flatnonzero(later[order])[0]])
         copy.counters['radar_stamp_jump_ms'] = int(round(-(after_ns - before_ns) / 1e6))
         copy.counters['radar_stamp_jump_at_ms'] = int(
-            (radar_received[first_later] - radar_received.min()) // 10**6)
+            (radar_received[later].min() - radar_received.min()) // 10**6)
         copy.counters['radar_stamps_rejoined'] = int(moved.sum())
         copy.counters['radar_stamps_rejoined_later'] = int(move_later)
         _LOG.warning('the radar\'s header stamps jump by %+.1f s against the recorder\'s clock: '
@@ -850,8 +848,6 @@ class RecordingBuilder:
         # (a fifteenth probe: 0.30-0.87 m off against 0.01-0.09 m with the same jumps in
         # NavSatFix, where they were found), so they are searched alike.
         from_odometry = not self._fixes and bool(odoms)
-        # (smoothed fixes keep a few centimetres of their scatter, correlated over the
-        # smoothing span: what the jumps are told from; the scatter is named instead)
         jittered = bool(self.counters.get('fix_stamp_jitter_ms'))
         if (status_rtk or from_odometry) and stamps.size == t.size:
             # (not where the Odometry's samples were added between slow fixes)
@@ -1357,27 +1353,48 @@ def _restart_step(received: I64, lag: I64) -> tuple[np.ndarray, int, int] | None
     """(messages after the fall, fall [ns], when it came [recorder's ns]) of the largest
     lasting fall of one stream's header stamps against its receipts, or None.
 
-    In receipt order the lag (received - stamp) jumps up by the fall; a median over
-    ``_RECEIPT_WINDOW`` messages ignores single late messages, and each message is then
-    given to the part its own lag is nearer (messages of the old clock still in flight)."""
-    if received.size < 2 * _RECEIPT_WINDOW:
+    In receipt order the lag (received - stamp) jumps up by the fall (``_lag_step``)."""
+    step = _lag_step(received, lag, _RESTART_BACK_S, rising_only=True)
+    if step is None:
+        return None
+    later, before, after, at_ns = step
+    return later, int(round(after - before)), at_ns
+
+
+def _lag_step(received: I64, lag: I64, min_step_s: float, rising_only: bool = False
+              ) -> tuple[np.ndarray, float, float, int] | None:
+    """(messages after it, median lag before, after [ns], when it came [recorder's ns]) of
+    the largest lasting step of one stream's receipt lag (received - header stamp) of at
+    least ``min_step_s``, or None (``rising_only``: stamps that fall back).
+
+    A median over ``_RECEIPT_WINDOW`` messages in receipt order ignores single late
+    messages; the messages around the step then go to the side whose median lag their own
+    is nearer (messages of the old clock still in flight, ``_step_sides``)."""
+    w = _RECEIPT_WINDOW
+    if received.size < 2 * w:
         return None
     order = np.argsort(received, kind='stable')
     ordered = lag[order].astype(np.float64)
-    smooth = ndimage.median_filter(ordered, size=_RECEIPT_WINDOW, mode='nearest')
-    step = np.diff(smooth)
-    k = int(np.argmax(step))
-    if step[k] <= _RESTART_BACK_S * 1e9:
+    change = np.diff(ndimage.median_filter(ordered, size=w, mode='nearest'))
+    k = int(np.argmax(change if rising_only else np.abs(change))) + 1
+    before, after = float(np.median(ordered[:k])), float(np.median(ordered[k:]))
+    step = after - before
+    if min(abs(change[k - 1]), abs(step) if not rising_only else step) <= min_step_s * 1e9:
         return None
-    before, after = float(np.median(ordered[:k + 1])), float(np.median(ordered[k + 1:]))
-    if after - before <= _RESTART_BACK_S * 1e9:
-        return None
-    later_ordered = np.zeros(ordered.size, bool)
-    later_ordered[max(0, k + 1 - _RECEIPT_WINDOW):] = True
-    later_ordered &= ordered > 0.5 * (before + after)
+    return (_step_sides(order, ordered, k, before, after, w), before, after,
+            int(received[order][k]))
+
+
+def _step_sides(order: I64, ordered: F64, k: int, before: float, after: float,
+                w: int) -> np.ndarray:
+    """(n,) True for the messages after a step of their lag at ``k`` (in receipt order
+    ``order``, lags ``ordered``): those from ``w`` before it on whose lag is nearer the
+    median after it than the one before."""
+    later_ordered = np.arange(ordered.size) >= max(0, k - w)
+    later_ordered &= np.abs(ordered - after) < np.abs(ordered - before)
     later = np.zeros(ordered.size, bool)
     later[order] = later_ordered
-    return later, int(round(after - before)), int(received[order][k + 1])
+    return later
 
 
 def _receipts_from(stamp_ns: int, lags: list[int], received: list[int]) -> list[int]:
@@ -1399,27 +1416,12 @@ def _radar_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
     ``_RECEIPT_OFFSET_S`` or more, of the radar stamps' receipt lag that the poses' lag does
     not share, or None. Messages near the step (in flight when it came) go to the side
     whose median lag their own is nearer."""
-    w = _RECEIPT_WINDOW
-    if radar_lag.size < 2 * w:
+    step = _lag_step(radar_received, radar_lag, _RECEIPT_OFFSET_S)
+    if step is None:
         return None
-    order = np.argsort(radar_received, kind='stable')
-    lag = radar_lag[order].astype(np.float64)
-    smooth = ndimage.median_filter(lag, size=w, mode='nearest')
-    change = np.diff(smooth)
-    k = int(np.argmax(np.abs(change))) + 1
-    if abs(change[k - 1]) <= _RECEIPT_OFFSET_S * 1e9:
+    later, before, after, at_ns = step
+    if _pose_lag_stepped(pose_lag, pose_received, at_ns, after - before):
         return None
-    before, after = float(np.median(lag[:k])), float(np.median(lag[k:]))
-    if abs(after - before) <= _RECEIPT_OFFSET_S * 1e9:
-        return None
-    if _pose_lag_stepped(pose_lag, pose_received, radar_received[order][k], after - before):
-        return None
-    later_ordered = np.zeros(lag.size, bool)
-    later_ordered[k:] = True
-    near = slice(max(0, k - w), min(lag.size, k + w))
-    later_ordered[near] = np.abs(lag[near] - after) < np.abs(lag[near] - before)
-    later = np.zeros(lag.size, bool)
-    later[order] = later_ordered
     return later, before, after
 
 
@@ -1499,14 +1501,9 @@ def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
         return None
     if _pose_lag_stepped(pose_lag, pose_received, int(received[k]), step):
         return None
-    # messages in flight around the step go to the side their own lag is nearer
-    later_ordered = np.arange(lag.size) >= k
-    near = slice(max(0, k - w), min(lag.size, k + w))
-    later_ordered[near] = np.abs(lag[near] - after) < np.abs(lag[near] - before)
-    later = np.zeros(lag.size, bool)
-    later[order] = later_ordered
     # a lag that drops is a stamp that jumps forward
-    return (int(round(-step / 1e6)), int((received[k] - received[0]) // 10**6), later)
+    return (int(round(-step / 1e6)), int((received[k] - received[0]) // 10**6),
+            _step_sides(order, lag, k, before, after, w))
 
 
 def _unaugmented_stretches(stamps_ns: I64, status: F64) -> dict[str, int]:
