@@ -759,14 +759,7 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
         the poses): a failure is where that matters most.
     """
     try:
-        scaled = _scaled_to_vehicle(config)
-        result = _run_calibration(recording, scaled, progress)
-        rejoined = _rejoined_clock_step(recording, result)
-        if rejoined is None:
-            return result
-        _LOG.warning('the passes\' clock offsets step where the radar\'s stamps jump against '
-                     'the recorder\'s clock: calibrating again with the stamps rejoined')
-        return _run_calibration(rejoined, scaled, progress)
+        return _calibration_clock_rejoined(recording, _scaled_to_vehicle(config), progress)
     except InsufficientDataError as err:
         notes = _clock_notes(recording, config) + _fix_grade_failure_note(recording)
         if type(err) is not InsufficientDataError or not notes:
@@ -775,48 +768,55 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
                                                          *notes))) from err
 
 
-#: How well a clock step of the final fit must match a jump of the radar's stamps against
-#: the recorder's clock to be taken as one: in size (share), and in time [s] beyond the
-#: gap between the passes around it.
-_STEP_MATCH_SHARE = 0.3
-_STEP_MATCH_S = 10.0
+def _calibration_clock_rejoined(recording: Recording, config: CalibConfig,
+                                progress: ProgressFn | None) -> CalibrationResult:
+    """The calibration of the recording, or of it with the radar stamps of one side of a
+    small clock step rejoined (``Recording.radar_clock_rejoin_ns``) where that lets more
+    passes agree.
+
+    Why: a step of the radar's clock under a second (an NTP correction) is not rejoined
+    when the recording is built, since from the receipts alone it looks like a transport
+    latency that settled higher. With one clock offset for both sides, the paper's stages
+    agree on the passes of one side only (a sixteenth probe's +0.15 s step: 9 of 17
+    passes, a drift of -91 ppm named; an eighth probe's -0.5 s: 3 of 6, 0.36 m off). The
+    calibration is run both ways and the one on more passes kept: a clock that stepped
+    gains the other side's passes when rejoined, a latency loses them.
+    """
+    failure: InsufficientDataError | None = None
+    try:
+        result: CalibrationResult | None = _run_calibration(recording, config, progress)
+    except InsufficientDataError as err:
+        result, failure = None, err
+    rejoined = _rejoined_clock(recording)
+    if rejoined is not None:
+        try:
+            other = _run_calibration(rejoined, config, progress)
+        except InsufficientDataError:
+            other = None
+        if other is not None and (result is None or _passes(other) > _passes(result)):
+            _LOG.warning('with the radar stamps rejoined across the step of its clock, %d '
+                         'passes agree (%s as stamped): kept', _passes(other),
+                         'none' if result is None else _passes(result))
+            return other
+    if result is None:
+        assert failure is not None
+        raise failure
+    return result
 
 
-def _rejoined_clock_step(recording: Recording, result: CalibrationResult) -> Recording | None:
-    """The recording with the radar stamps on one side of a small clock step moved by it,
-    when the final fit's passes show the step (``refine._clock_step``) where and as large
-    as the recorder's clock saw the radar's stamps jump (``recording._small_clock_step``),
-    else None.
+def _passes(result: CalibrationResult) -> int:
+    """Passes on which the paper's stages agree (the final fit takes every pass the result
+    places the vehicle in, agreeing or not)."""
+    return result.selection.n_passes
 
-    Why: a step under a second is left alone when the recording is built (a transport
-    latency that settles higher looks alike from the receipts), and the paper's stages,
-    with one clock offset, then agree only on the passes of one side (a sixteenth probe's
-    +0.15 s NTP step: 9 of 17 passes, delta_op 0.36-0.52 m against 0.17). Where the
-    passes' own offsets step by as much at that time, the stamps are wrong, not late: the
-    side whose offset lies farther from zero is moved onto the other's clock, and the
-    whole calibration runs again on it."""
-    counters = recording.counters
-    jump_ms = counters.get('radar_stamp_jump_ms')
-    diagnostics = result.refinement.diagnostics if result.refinement is not None else {}
-    step_ms = diagnostics.get('clock_step_ms')
-    if jump_ms is None or step_ms is None or counters.get('radar_stamps_rejoined'):
+
+def _rejoined_clock(recording: Recording) -> Recording | None:
+    """The recording with ``radar_clock_rejoin_ns`` added to its frames' stamps (frames and
+    targets sorted again: the two sides may interleave by milliseconds), else None."""
+    shift = recording.radar_clock_rejoin_ns
+    if shift is None:
         return None
-    # stamps that jump forward by J lower the clock offset by J
-    if abs(step_ms + jump_ms) > _STEP_MATCH_SHARE * abs(jump_ms):
-        return None
-    jump_at_s = counters.get('radar_stamp_jump_at_ms', 0) / 1000.0
-    if abs(jump_at_s - diagnostics['clock_step_at_s']) > (diagnostics['clock_step_window_s']
-                                                          + _STEP_MATCH_S):
-        return None
-    later = recording.radar_clock_later
-    if later is None:
-        return None
-    before_s, after_s = diagnostics['clock_step_offsets_s']
-    move_later = abs(after_s) >= abs(before_s)
-    moved = later if move_later else ~later
-    shift = int(round(step_ms * 1e6)) * (1 if move_later else -1)
-    stamps = recording.frame_stamps_ns + shift * moved
-    # frames of both sides may now interleave by milliseconds: sorted again, targets too
+    stamps = recording.frame_stamps_ns + shift
     order = np.argsort(stamps, kind='stable')
     rank = np.empty_like(order)
     rank[order] = np.arange(order.size)
@@ -827,9 +827,9 @@ def _rejoined_clock_step(recording: Recording, result: CalibrationResult) -> Rec
         recording, frame_stamps_ns=stamps[order],
         targets=Targets(targets.positions_m[by_frame], targets.radial_velocity_mps[by_frame],
                         new_index[by_frame]),
-        radar_clock_later=None, counters={
-            **counters, 'radar_stamps_rejoined': int(moved.sum()),
-            'radar_stamps_rejoined_later': int(move_later)})
+        radar_clock_rejoin_ns=None, counters={
+            **recording.counters, 'radar_stamps_rejoined': int(np.count_nonzero(shift)),
+            'radar_stamps_rejoined_later': int(shift[-1] != 0)})
 
 
 def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibConfig,

@@ -56,9 +56,11 @@ class Recording:
     fix_sigma_m : median 1-sigma (horizontal, vertical) the vehicle's fixes declare in their
         ``position_covariance`` [m], None when none declares one (``pose_sigma_m`` then
         assumes one);
-    radar_clock_later : (f,) True for the frames received after a step of the radar's
-        clock under a second that the recorder's clock saw (``_small_clock_step``; the
-        pipeline moves them once the passes confirm it), None without one.
+    radar_clock_rejoin_ns : (f,) what to add to each frame's stamp to undo a step of the
+        radar's clock under a second that the recorder's clock saw (``_small_clock_step``;
+        zero on the side nearer the poses' clock); the pipeline tries it (such a step is
+        not told from a transport latency that settled higher by the receipts alone).
+        None without one.
     """
 
     frame_stamps_ns: I64
@@ -68,7 +70,7 @@ class Recording:
     radar_frame_id: str = 'radar'
     counters: dict[str, int] = field(default_factory=dict)
     fix_sigma_m: tuple[float, float] | None = None
-    radar_clock_later: np.ndarray | None = None
+    radar_clock_rejoin_ns: I64 | None = None
 
     @property
     def pose_sigma_m(self) -> tuple[float, float]:
@@ -428,14 +430,21 @@ class RecordingBuilder:
         counters.update(_receipt_checks(np.asarray(self._radar_lag, np.int64),
                                         np.asarray(self._radar_received, np.int64),
                                         pose_lag, pose_received))
-        clock_later = None
+        rejoin_ns = None
         if ('radar_stamp_jump_ms' in counters and len(self._radar_lag) == len(self._frame_stamps)):
             small = _small_clock_step(np.asarray(self._radar_lag, np.int64),
                                       np.asarray(self._radar_received, np.int64),
                                       pose_lag, pose_received)
             if small is not None:
-                clock_later = np.zeros(frame_stamps.size, bool)
-                np.logical_or.at(clock_later, message_frame.ravel(), small[2][order])
+                # the side whose stamps lie farther from the poses' moves onto the other's
+                _, _, later, before, after = small
+                pose_ns = float(np.median(pose_lag)) if pose_lag.size else before
+                move_later = abs(after - pose_ns) >= abs(before - pose_ns)
+                frame_later = np.zeros(frame_stamps.size, bool)
+                np.logical_or.at(frame_later, message_frame.ravel(), later[order])
+                moved = frame_later if move_later else ~frame_later
+                rejoin_ns = (int(round(after - before)) * (1 if move_later else -1)
+                             * moved.astype(np.int64))
         merged = int(order.size - frame_stamps.size)
         if merged:
             counters['radar_messages_merged'] = merged
@@ -443,7 +452,7 @@ class RecordingBuilder:
                          'stamp is taken as one scan (%d scans)', merged, frame_stamps.size)
         return Recording(frame_stamps, targets, vehicle, frame,
                          radar_frame_id=self._config.radar.frame_id, counters=counters,
-                         fix_sigma_m=self._fix_sigma(), radar_clock_later=clock_later)
+                         fix_sigma_m=self._fix_sigma(), radar_clock_rejoin_ns=rejoin_ns)
 
     def _judging_pose_receipts(self) -> tuple[I64, I64]:
         """(lag, received) of the pose messages the radar's stamps are judged by: the fixes'
@@ -1463,7 +1472,7 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
         return out
     step_at = _small_clock_step(radar_lag, radar_received, pose_lag, pose_received)
     if step_at is not None:
-        out['radar_stamp_jump_ms'], out['radar_stamp_jump_at_ms'], _ = step_at
+        out['radar_stamp_jump_ms'], out['radar_stamp_jump_at_ms'] = step_at[:2]
     return out
 
 
@@ -1474,9 +1483,11 @@ _RECEIPT_STEP_S = 0.15
 
 
 def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
-                      pose_received: I64 | None) -> tuple[int, int, np.ndarray] | None:
-    """(jump [ms], when [ms after the first radar message], the messages after it) of a
-    lasting step of the radar stamps' receipt lag below a second, or None.
+                      pose_received: I64 | None
+                      ) -> tuple[int, int, np.ndarray, float, float] | None:
+    """(jump [ms], when [ms after the first radar message], the messages after it, the
+    median lag before and after it [ns]) of a lasting step of the radar stamps' receipt lag
+    below a second, or None.
 
     Why: an NTP correction steps the radar's clock by tenths of a second; the passes on one
     side are then paired with poses that far off, the clock offset the fit finds is a blend,
@@ -1503,7 +1514,7 @@ def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
         return None
     # a lag that drops is a stamp that jumps forward
     return (int(round(-step / 1e6)), int((received[k] - received[0]) // 10**6),
-            _step_sides(order, lag, k, before, after, w))
+            _step_sides(order, lag, k, before, after, w), before, after)
 
 
 def _unaugmented_stretches(stamps_ns: I64, status: F64) -> dict[str, int]:

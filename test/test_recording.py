@@ -1203,10 +1203,12 @@ def test_a_step_of_the_radar_clock_alone_is_rejoined_on_the_poses_side() -> None
     assert 'radar_stamps_rejoined' not in small.counters
     assert small.counters['radar_stamp_jump_ms'] == pytest.approx(300, abs=20)
     assert np.abs(radar_minus_pose_s(small)[-100:] - 0.3).max() < 0.01
-    # ... with the frames after it marked, for the pipeline to move once the passes agree
-    assert small.radar_clock_later is not None
-    assert np.array_equal(np.flatnonzero(small.radar_clock_later), np.arange(900, 1800))
-    assert later.radar_clock_later is None and recorder.radar_clock_later is None
+    # ... with the stamps that would undo it, for the pipeline to try: the side after it
+    # lies farther from the poses' clock
+    rejoin = small.radar_clock_rejoin_ns
+    assert rejoin is not None and np.array_equal(np.flatnonzero(rejoin), np.arange(900, 1800))
+    assert np.all(np.abs(rejoin[900:] + 300_000_000) < 10_000_000)
+    assert later.radar_clock_rejoin_ns is None and recorder.radar_clock_rejoin_ns is None
 
 
 @pytest.mark.parametrize('heading_rad', [0.0, math.pi, -math.pi / 2])

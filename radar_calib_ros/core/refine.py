@@ -303,7 +303,6 @@ class ClockDrift:
     sigma: float
     step_s: float = 0.0
     step_at_s: float = math.inf
-    step_window_s: float = 0.0   # half the gap between the passes around the step
 
     def offset_change_s(self, t_s: F64) -> F64:
         """(n,) the offset at radar times ``t_s`` minus the offset at ``reference_s``."""
@@ -1059,7 +1058,7 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
                 ClockDrift(drift.rate + more.rate, more.reference_s, more.sigma)
                 if not drift.step_s else
                 ClockDrift(0.0, drift.reference_s, more.sigma, drift.step_s + more.step_s,
-                           drift.step_at_s, drift.step_window_s))
+                           drift.step_at_s))
             try:
                 refinement = _refine_checked(initial, recording, tracked, selection, config,
                                              ground_normal, drift)
@@ -1387,9 +1386,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         diagnostics['clock_step_ms'] = 1e3 * drift.step_s
         diagnostics['clock_step_sigma_ms'] = 1e3 * drift.sigma
         diagnostics['clock_step_at_s'] = drift.step_at_s - first_s
-        diagnostics['clock_step_window_s'] = drift.step_window_s
         before = est.time_offset_s - drift.step_s * float(drift.reference_s >= drift.step_at_s)
-        diagnostics['clock_step_offsets_s'] = [before, before + drift.step_s]
         diagnostics['advice'] = [
             f'The radar\'s clock offset against the vehicle\'s stepped by '
             f'{1000 * drift.step_s:+.0f} ms (+-{1000 * drift.sigma:.0f}) between two passes, '
@@ -1604,13 +1601,12 @@ def _clock_step(offsets: list[list[float]], at_s: float | None = None) -> ClockD
     dof = n - 2
     sigma = math.sqrt(float(rss[k]) / dof * (1.0 / w_a[k] + 1.0 / w_b[k]))
     at = 0.5 * (t[j - 1] + t[j]) if at_s is None else at_s
-    window = 0.5 * (t[j] - t[j - 1])
     # the reference on the side with the more information: its offset is the one reported
     reference = float(t[j:].mean() if w_b[k] > w_a[k] else t[:j].mean())
     if at_s is not None:
         if abs(step) < 2.0 * sigma:
             return None
-        return ClockDrift(0.0, reference, sigma, step, at, window)
+        return ClockDrift(0.0, reference, sigma, step, at)
     t_mean = float(np.sum(w * t))
     spread = float(np.sum(w * (t - t_mean) ** 2))
     rate = float(np.sum(w * (t - t_mean) * (tau - np.sum(w * tau)))) / max(spread, 1e-12)
@@ -1622,7 +1618,7 @@ def _clock_step(offsets: list[list[float]], at_s: float | None = None) -> ClockD
     if (abs(step) < max(_STEP_MIN_S, critical * sigma)
             or float(rss[k]) >= _STEP_BETTER * line_rss):
         return None
-    return ClockDrift(0.0, reference, sigma, step, at, window)
+    return ClockDrift(0.0, reference, sigma, step, at)
 
 
 def _clock_drift(offsets: list[list[float]], reference_s: float,

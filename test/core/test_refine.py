@@ -1096,7 +1096,7 @@ def test_a_clock_step_between_passes_is_told_from_a_drift() -> None:
     step = _pass_offsets(lambda t: -0.004 if t < 500.0 else -0.15)
     found = refine._clock_step(step)
     assert found is not None and found.step_s == pytest.approx(-0.146, abs=0.006)
-    assert 450.0 < found.step_at_s < 540.0 and found.step_window_s == pytest.approx(30.0)
+    assert 450.0 < found.step_at_s < 540.0
     # the offset reported is that of the side with the more passes (after the step here)
     assert found.reference_s > found.step_at_s
     assert found.offset_change_s(np.array([100.0]))[0] == pytest.approx(0.146, abs=0.006)
