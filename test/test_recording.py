@@ -1311,6 +1311,33 @@ def test_silent_rtk_float_between_jumps_is_found_and_left_out(with_odometry: boo
     assert ('Odometry' in notes[0]) == with_odometry
 
 
+def _slalom_fixes(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                     np.ndarray]:
+    """150 s of a car weaving at 4-14 m/s: fix epochs at 20 Hz, a 1 kHz time axis, the path
+    on it, and the fixes (1 cm of noise)."""
+    epoch = np.arange(0.0, 150.0, 0.05)
+    fine = np.arange(0.0, 150.0, 0.001)
+    f_speed = 9.0 + 5.0 * np.sin(2 * np.pi * fine / 21.0)
+    f_yaw = 1.2 * np.sin(2 * np.pi * fine / 30.0)
+    f_xy = np.column_stack([np.cumsum(f_speed * np.cos(f_yaw)),
+                            np.cumsum(f_speed * np.sin(f_yaw))]) * 1e-3
+    xy = np.column_stack([np.interp(epoch, fine, f_xy[:, i]) for i in range(2)])
+    return epoch, fine, f_xy, xy + rng.normal(0.0, 0.01, xy.shape)
+
+
+def _fixes_stamped_at(stamps_s: np.ndarray, xy: np.ndarray) -> RecordingBuilder:
+    """A builder with one radar frame and RTK fixes at local ``xy``, stamped at
+    ``stamps_s`` after T0."""
+    frame = LocalFrame.at(LAT0, LON0)
+    lat, lon, alt = frame.local_to_geodetic(np.column_stack([xy, np.zeros(len(xy))]))
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i in range(len(xy)):
+        builder.add_fix(FixSample(T0 + int(round(stamps_s[i] * 1e9)), lat[i], lon[i], alt[i],
+                                  2, (0.02, 0.03)))
+    return builder
+
+
 @pytest.mark.parametrize('delay_ms', [(0, 0), (20, 150), (20, 40)])
 def test_fixes_stamped_on_arrival_are_smoothed_and_named(delay_ms: tuple[int, int]) -> None:
     """Fixes stamped when they arrive, 20-150 ms after their epoch (a fifteenth probe: 1-2 m
@@ -1320,23 +1347,9 @@ def test_fixes_stamped_on_arrival_are_smoothed_and_named(delay_ms: tuple[int, in
     from radar_calib_ros.pipeline import _data_notes
 
     rng = np.random.default_rng(11)
-    frame = LocalFrame.at(LAT0, LON0)
-    epoch = np.arange(0.0, 150.0, 0.05)
-    fine = np.arange(0.0, 150.0, 0.001)
-    f_speed = 9.0 + 5.0 * np.sin(2 * np.pi * fine / 21.0)
-    f_yaw = 1.2 * np.sin(2 * np.pi * fine / 30.0)
-    f_xy = np.column_stack([np.cumsum(f_speed * np.cos(f_yaw)),
-                            np.cumsum(f_speed * np.sin(f_yaw))]) * 1e-3
-    xy = np.column_stack([np.interp(epoch, fine, f_xy[:, i]) for i in range(2)])
-    xy += rng.normal(0.0, 0.01, xy.shape)
-    lat, lon, alt = frame.local_to_geodetic(np.column_stack([xy, np.zeros(epoch.size)]))
+    epoch, fine, f_xy, xy = _slalom_fixes(rng)
     delay = rng.uniform(*delay_ms, epoch.size) / 1000.0
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    for i in range(epoch.size):
-        builder.add_fix(FixSample(T0 + int(round((epoch[i] + delay[i]) * 1e9)), lat[i], lon[i],
-                                  alt[i], 2, (0.02, 0.03)))
-    rec = builder.build()
+    rec = _fixes_stamped_at(epoch + delay, xy).build()
     c = rec.counters
     notes = [n for n in _data_notes(rec, []) if 'on arrival' in n]
     if delay_ms[1] == 0:
@@ -1361,25 +1374,11 @@ def test_a_false_fix_among_fixes_stamped_on_arrival_is_found_across_the_travel()
     word). Across the travel they stay exact: the jumps are searched there, and the fixes
     between them left out."""
     rng = np.random.default_rng(12)
-    frame = LocalFrame.at(LAT0, LON0)
-    epoch = np.arange(0.0, 150.0, 0.05)
-    fine = np.arange(0.0, 150.0, 0.001)
-    f_speed = 9.0 + 5.0 * np.sin(2 * np.pi * fine / 21.0)
-    f_yaw = 1.2 * np.sin(2 * np.pi * fine / 30.0)
-    f_xy = np.column_stack([np.cumsum(f_speed * np.cos(f_yaw)),
-                            np.cumsum(f_speed * np.sin(f_yaw))]) * 1e-3
-    xy = np.column_stack([np.interp(epoch, fine, f_xy[:, i]) for i in range(2)])
-    xy += rng.normal(0.0, 0.01, xy.shape)
+    epoch, _, _, xy = _slalom_fixes(rng)
     false = (epoch >= 60.0) & (epoch < 80.0)
     xy[false] += (0.6, -0.5)
-    lat, lon, alt = frame.local_to_geodetic(np.column_stack([xy, np.zeros(epoch.size)]))
     delay = rng.uniform(20, 80, epoch.size) / 1000.0
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    for i in range(epoch.size):
-        builder.add_fix(FixSample(T0 + int(round((epoch[i] + delay[i]) * 1e9)), lat[i], lon[i],
-                                  alt[i], 2, (0.02, 0.03)))
-    c = builder.build().counters
+    c = _fixes_stamped_at(epoch + delay, xy).build().counters
     assert c['fix_stamp_jitter_ms'] > 10
     assert c['fix_jumps'] == 2
     assert abs(c['fix_jumps_first_s'] - 60) <= 1 and abs(c['fix_jumps_last_s'] - 80) <= 1
