@@ -434,6 +434,11 @@ def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
                          f'{rejoined} frames {side} the jump were moved by it onto the clock '
                          f'{other} it (the one nearer the vehicle\'s), so that one clock offset '
                          'holds throughout. Check the radar\'s time sync.')
+        elif counters.get('radar_stamp_rejoin_tried'):
+            notes.append(f'{said}: the calibration was also run with the frames on one side '
+                         'moved by it onto the other\'s clock, and no more passes agreed so; '
+                         'the stamps were kept as recorded (a transport delay that settled '
+                         'higher, rather than the radar\'s clock?).')
         else:
             notes.append(f'{said} (a clock that lost its sync?): the frames on one side of the '
                          'jump are paired with the wrong poses or none.')
@@ -783,11 +788,15 @@ def _calibration_clock_rejoined(recording: Recording, config: CalibConfig,
     gains the other side's passes when rejoined, a latency loses them.
     """
     failure: InsufficientDataError | None = None
+    rejoined = _rejoined_clock(recording)
+    if rejoined is not None:
+        # (its notes, if it is kept, say that the other way was tried)
+        recording = replace(recording, counters={**recording.counters,
+                                                 'radar_stamp_rejoin_tried': 1})
     try:
         result: CalibrationResult | None = _run_calibration(recording, config, progress)
     except InsufficientDataError as err:
         result, failure = None, err
-    rejoined = _rejoined_clock(recording)
     if rejoined is not None:
         try:
             other = _run_calibration(rejoined, config, progress)

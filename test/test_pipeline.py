@@ -552,7 +552,8 @@ def test_a_small_clock_step_is_rejoined_where_more_passes_then_agree(
         def run(recording: Any, config: Any, progress: Any) -> Any:
             passes = joined if 'radar_stamps_rejoined' in recording.counters else as_stamped
             if passes is None:
-                raise InsufficientDataError('hypotheses', f'do not agree ({id(recording)})')
+                way = 'rejoined' if 'radar_stamps_rejoined' in recording.counters else 'stamped'
+                raise InsufficientDataError('hypotheses', f'do not agree ({way})')
             return types.SimpleNamespace(selection=types.SimpleNamespace(n_passes=passes),
                                          recording=recording)
         monkeypatch.setattr(pipeline, '_run_calibration', run)
@@ -564,6 +565,13 @@ def test_a_small_clock_step_is_rejoined_where_more_passes_then_agree(
 
     assert kept(3, 6) and not kept(6, 6) and not kept(6, 3) and kept(None, 4)
     assert not kept(5, None)
+    # kept as stamped: the note says the other way was tried
+    runs(6, 3)
+    as_stamped = pipeline._calibration_clock_rejoined(rec, CalibConfig(), None).recording
+    notes = pipeline._clock_notes(as_stamped, CalibConfig())
+    assert any('no more passes agreed so' in n for n in notes), notes
+    assert not any('tried' in n or 'no more passes' in n
+                   for n in pipeline._clock_notes(rec, CalibConfig()))
     runs(None, None)
-    with pytest.raises(InsufficientDataError, match=str(id(rec))):
+    with pytest.raises(InsufficientDataError, match=r'\(stamped\)'):
         pipeline._calibration_clock_rejoined(rec, CalibConfig(), None)
