@@ -436,15 +436,12 @@ class RecordingBuilder:
                                       np.asarray(self._radar_received, np.int64),
                                       pose_lag, pose_received)
             if small is not None:
-                # the side whose stamps lie farther from the poses' moves onto the other's
                 _, _, later, before, after = small
-                pose_ns = float(np.median(pose_lag)) if pose_lag.size else before
-                move_later = abs(after - pose_ns) >= abs(before - pose_ns)
                 frame_later = np.zeros(frame_stamps.size, bool)
                 np.logical_or.at(frame_later, message_frame.ravel(), later[order])
+                move_later, shift = _rejoin_shift(before, after, pose_lag)
                 moved = frame_later if move_later else ~frame_later
-                rejoin_ns = (int(round(after - before)) * (1 if move_later else -1)
-                             * moved.astype(np.int64))
+                rejoin_ns = shift * moved.astype(np.int64)
         merged = int(order.size - frame_stamps.size)
         if merged:
             counters['radar_messages_merged'] = merged
@@ -490,17 +487,12 @@ class RecordingBuilder:
         if step is None:
             return None
         later, before_ns, after_ns = step
-        # move the side whose lag is farther from the poses' onto the other's clock
-        pose_ns = float(np.median(pose_lag)) if pose_lag.size else before_ns
-        move_later = abs(after_ns - pose_ns) >= abs(before_ns - pose_ns)
+        move_later, shift = _rejoin_shift(before_ns, after_ns, pose_lag)
         moved = later if move_later else ~later
-        shift = int(round(after_ns - before_ns)) * (1 if move_later else -1)
         copy = self.snapshot()
         copy._frame_stamps = list(np.asarray(self._frame_stamps, np.int64) + shift * moved)
         copy._radar_lag = list(radar_lag - shift * moved)
-        copy.counters['radar_stamp_jump_ms'] = int(round(-(after_ns - before_ns) / 1e6))
-        copy.counters['radar_stamp_jump_at_ms'] = int(
-            (radar_received[later].min() - radar_received.min()) // 10**6)
+        copy.counters.update(_jump_counters(later, before_ns, after_ns, radar_received))
         copy.counters['radar_stamps_rejoined'] = int(moved.sum())
         copy.counters['radar_stamps_rejoined_later'] = int(move_later)
         _LOG.warning('the radar\'s header stamps jump by %+.1f s against the recorder\'s clock: '
@@ -1434,6 +1426,27 @@ def _radar_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
     return later, before, after
 
 
+def _jump_counters(later: np.ndarray, before_ns: float, after_ns: float,
+                   radar_received: I64) -> dict[str, int]:
+    """'radar_stamp_jump_ms' (a lag that drops is a stamp that jumps forward) and
+    'radar_stamp_jump_at_ms' (after the first radar message) of a step of the radar
+    stamps' receipt lag from ``before_ns`` to ``after_ns``, ``later`` the messages after."""
+    return {'radar_stamp_jump_ms': int(round(-(after_ns - before_ns) / 1e6)),
+            'radar_stamp_jump_at_ms': int(
+                (radar_received[later].min() - radar_received.min()) // 10**6)}
+
+
+def _rejoin_shift(before_ns: float, after_ns: float, pose_lag: I64) -> tuple[bool, int]:
+    """(whether the side after it moves, by how much [ns]) to undo a step of the radar
+    stamps' receipt lag from ``before_ns`` to ``after_ns``: the side whose lag lies farther
+    from the poses' moves onto the other's clock (a radar on GPS time that finds its sync
+    keeps its later stamps; one that loses it, its earlier ones)."""
+    pose_ns = float(np.median(pose_lag)) if pose_lag.size else before_ns
+    move_later = abs(after_ns - pose_ns) >= abs(before_ns - pose_ns)
+    shift = int(round(after_ns - before_ns))
+    return move_later, shift if move_later else -shift
+
+
 def _pose_lag_stepped(pose_lag: I64, pose_received: I64 | None, at_ns: int,
                       step_ns: float) -> bool:
     """Whether the poses' receipt lag steps alike (within half) at ``at_ns``: the
@@ -1464,11 +1477,7 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
     out['radar_stamp_offset_ms'] = int(round(offset_ns / 1e6))
     step = _radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)
     if step is not None:
-        later, before, after = step
-        # a lag that drops is a stamp that jumps forward
-        out['radar_stamp_jump_ms'] = int(round(-(after - before) / 1e6))
-        out['radar_stamp_jump_at_ms'] = int(
-            (radar_received[later].min() - radar_received.min()) // 10**6)
+        out.update(_jump_counters(*step, radar_received))
         return out
     step_at = _small_clock_step(radar_lag, radar_received, pose_lag, pose_received)
     if step_at is not None:
@@ -1687,15 +1696,12 @@ def _heading_offset(heading: F64, courses: list[F64], counters: Counter[str],
     residual = wrap_angle(heading - best)
     offset, threshold = float(np.median(residual)), _HEADING_OFFSET_MIN_RAD
     if t is not None and straight is not None and straight.any():
-        ts, rs = t[straight], residual[straight]
-        label = np.floor((ts - ts[0]) / _HEADING_WANDER_BIN_S).astype(np.int64)
-        used = np.flatnonzero(np.bincount(label) >= _HEADING_WANDER_MIN_SAMPLES)
-        if used.size >= _HEADING_OFFSET_MIN_BINS:
-            medians = np.asarray(ndimage.median(rs, labels=label, index=used), float)
+        medians, _ = _heading_bins(t[straight], residual[straight])
+        if medians.size >= _HEADING_OFFSET_MIN_BINS:
             offset = float(np.median(medians))
             # standard error of a median: 1.25 sigma / sqrt(n), sigma from the bins' MAD
             threshold = max(_HEADING_OFFSET_STRAIGHT_MIN_RAD, _HEADING_OFFSET_SE * 1.2533
-                            * _robust_sigma(medians) / math.sqrt(used.size))
+                            * _robust_sigma(medians) / math.sqrt(medians.size))
     if abs(offset) < threshold:
         return 0.0
     counters['odometry_heading_offset_cdeg'] = int(round(100.0 * math.degrees(offset)))
@@ -1716,6 +1722,18 @@ _HEADING_WANDER_MAX_RAD = math.radians(5.0)
 _STRAIGHT_RATE_RPS = 0.05
 
 
+def _heading_bins(t_straight: F64, residual: F64) -> tuple[F64, F64]:
+    """(medians of ``residual``, mean times) over the ``_HEADING_WANDER_BIN_S`` bins of the
+    straight moving samples ``t_straight`` that hold ``_HEADING_WANDER_MIN_SAMPLES`` or
+    more (empty where none does)."""
+    label = np.floor((t_straight - t_straight[0]) / _HEADING_WANDER_BIN_S).astype(np.int64)
+    used = np.flatnonzero(np.bincount(label) >= _HEADING_WANDER_MIN_SAMPLES)
+    if used.size == 0:
+        return np.zeros(0), np.zeros(0)
+    return (np.asarray(ndimage.median(residual, labels=label, index=used), float),
+            np.asarray(ndimage.mean(t_straight, labels=label, index=used), float))
+
+
 def _heading_wander(t_straight: F64, residual: F64, t: F64, counters: Counter[str]
                     ) -> F64 | None:
     """(n,) the slowly varying part of the Odometry heading's offset from the course over
@@ -1734,13 +1752,9 @@ def _heading_wander(t_straight: F64, residual: F64, t: F64, counters: Counter[st
     """
     if t_straight.size < 2 * _HEADING_WANDER_MIN_SAMPLES:
         return None
-    label = np.floor((t_straight - t_straight[0]) / _HEADING_WANDER_BIN_S).astype(np.int64)
-    counts = np.bincount(label)
-    used = np.flatnonzero(counts >= _HEADING_WANDER_MIN_SAMPLES)
-    if used.size < 2:
+    medians, centres = _heading_bins(t_straight, residual)
+    if medians.size < 2:
         return None
-    medians = np.asarray(ndimage.median(residual, labels=label, index=used), float)
-    centres = np.asarray(ndimage.mean(t_straight, labels=label, index=used), float)
     # a heading further off is no drift but a broken orientation (an INS still aligning
     # writes the identity): what judges the orientation as a whole sees to it
     small = np.abs(medians) <= _HEADING_WANDER_MAX_RAD

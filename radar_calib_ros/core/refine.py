@@ -304,6 +304,19 @@ class ClockDrift:
     step_s: float = 0.0
     step_at_s: float = math.inf
 
+    @property
+    def size(self) -> float:
+        """How large it is, in its own unit (the step [s], else the rate), for telling when
+        what is left of it no longer matters."""
+        return abs(self.step_s) if self.step_s else abs(self.rate)
+
+    def plus(self, more: ClockDrift) -> ClockDrift:
+        """This clock model with ``more`` of the same kind (found after it) added."""
+        if self.step_s:
+            return ClockDrift(0.0, self.reference_s, more.sigma, self.step_s + more.step_s,
+                              self.step_at_s)
+        return ClockDrift(self.rate + more.rate, more.reference_s, more.sigma)
+
     def offset_change_s(self, t_s: F64) -> F64:
         """(n,) the offset at radar times ``t_s`` minus the offset at ``reference_s``."""
         change = self.rate * (t_s - self.reference_s)
@@ -1050,15 +1063,10 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
                 more = _clock_step(offsets, at_s=drift.step_at_s)
             else:
                 more = _clock_drift(offsets, reference_s, found=True)
-            if more is None or (drift is not None and (
-                    abs(more.rate) < _DRIFT_SETTLED * abs(drift.rate) if not drift.step_s
-                    else abs(more.step_s) < _DRIFT_SETTLED * abs(drift.step_s))):
+            if more is None or (drift is not None
+                                and more.size < _DRIFT_SETTLED * drift.size):
                 break
-            drift = more if drift is None else (
-                ClockDrift(drift.rate + more.rate, more.reference_s, more.sigma)
-                if not drift.step_s else
-                ClockDrift(0.0, drift.reference_s, more.sigma, drift.step_s + more.step_s,
-                           drift.step_at_s))
+            drift = more if drift is None else drift.plus(more)
             try:
                 refinement = _refine_checked(initial, recording, tracked, selection, config,
                                              ground_normal, drift)
@@ -1607,10 +1615,7 @@ def _clock_step(offsets: list[list[float]], at_s: float | None = None) -> ClockD
         if abs(step) < 2.0 * sigma:
             return None
         return ClockDrift(0.0, reference, sigma, step, at)
-    t_mean = float(np.sum(w * t))
-    spread = float(np.sum(w * (t - t_mean) ** 2))
-    rate = float(np.sum(w * (t - t_mean) * (tau - np.sum(w * tau)))) / max(spread, 1e-12)
-    line_rss = float(np.sum(w * (tau - np.sum(w * tau) - rate * (t - t_mean)) ** 2))
+    _, line_rss, _ = _weighted_line(t, tau, w)
     critical = float(stats.t.ppf(1.0 - _DRIFT_FALSE_ALARM / (2.0 * splits.size), dof))
     _LOG.debug('clock step from %d passes: %.1f +- %.1f ms at %.0f s (needs %.1f sigma), '
                'scatter %.2f of the line\'s', n, 1e3 * step, 1e3 * sigma, at, critical,
@@ -1619,6 +1624,16 @@ def _clock_step(offsets: list[list[float]], at_s: float | None = None) -> ClockD
             or float(rss[k]) >= _STEP_BETTER * line_rss):
         return None
     return ClockDrift(0.0, reference, sigma, step, at)
+
+
+def _weighted_line(t: F64, tau: F64, w: F64) -> tuple[float, float, float]:
+    """(slope, weighted residual sum of squares, weighted spread of ``t``) of the line
+    through the passes' clock offsets ``tau`` at times ``t``, weights ``w`` summing to 1."""
+    t_mean = float(np.sum(w * t))
+    spread = float(np.sum(w * (t - t_mean) ** 2))
+    rate = float(np.sum(w * (t - t_mean) * (tau - np.sum(w * tau)))) / max(spread, 1e-12)
+    rss = float(np.sum(w * (tau - np.sum(w * tau) - rate * (t - t_mean)) ** 2))
+    return rate, rss, spread
 
 
 def _clock_drift(offsets: list[list[float]], reference_s: float,
@@ -1640,14 +1655,11 @@ def _clock_drift(offsets: list[list[float]], reference_s: float,
         return None
     t, tau, w = (np.array(v, float) for v in zip(*offsets))
     w = w / w.sum()
-    t_mean = float(np.sum(w * t))
-    spread = float(np.sum(w * (t - t_mean) ** 2))
+    rate, rss, spread = _weighted_line(t, tau, w)
     if spread <= 0.0:
         return None
-    rate = float(np.sum(w * (t - t_mean) * (tau - np.sum(w * tau)))) / spread
-    fitted = np.sum(w * tau) + rate * (t - t_mean)
     dof = t.size - 2
-    scatter = float(np.sum(w * (tau - fitted) ** 2)) * t.size / dof
+    scatter = rss * t.size / dof
     sigma = math.sqrt(scatter / (spread * t.size))
     critical = 2.0 if found else float(stats.t.ppf(1.0 - _DRIFT_FALSE_ALARM / 2.0, dof))
     _LOG.debug('clock drift from %d passes: %.1f +- %.1f ppm (needs %.1f sigma)', t.size,
