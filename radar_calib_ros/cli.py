@@ -299,8 +299,11 @@ def cmd_simulate(args: argparse.Namespace, out: TextIO) -> int:
     summary = simulate(args.out_bag, seed=args.seed, duration_s=args.duration,
                        storage=args.storage, scenario=args.scenario,
                        scatter_model=args.scatter_model, mount_seed=args.mount_seed,
-                       max_unambiguous_velocity_mps=args.unambiguous_velocity)
+                       max_unambiguous_velocity_mps=args.unambiguous_velocity,
+                       mount_turn=None if args.mount_turn is None else tuple(args.mount_turn))
     mount = '' if args.mount_seed is None else f', mount seed {args.mount_seed}'
+    if args.mount_turn is not None:
+        mount += (f', mount turned {args.mount_turn[1]:+g} deg at {args.mount_turn[0]:g} s')
     print(f'simulated {args.scenario!r} ({args.duration:.0f} s, seed {args.seed}{mount}) into '
           f'{args.out_bag} in {time.perf_counter() - start:.1f} s: {summary.n_frames} radar '
           f'frames, {summary.n_targets} targets, {summary.n_passes} passes of the calibration '
@@ -456,6 +459,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--unambiguous-velocity', type=float, default=0.0, metavar='MPS',
                    help='fold radial velocities beyond +-MPS m/s, as a radar tuned for range '
                         'does (default: 0, no folding)')
+    p.add_argument('--mount-turn', type=float, nargs=2, default=None,
+                   metavar=('AT_S', 'YAW_DEG'),
+                   help='the mount turns about the vertical by YAW_DEG (anticlockwise seen '
+                        'from above) AT_S seconds into the recording, as when re-aimed; the '
+                        'ground truth is the mount after it')
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser('demo',

@@ -22,8 +22,8 @@ from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.result import calibration_dict, quality_dict
 from radar_calib_ros.types import (
-    Extrinsics, GroundPlane, Hypothesis, HypothesisSelection, QualityReport, Refinement,
-    SmoothedTrack, Targets, TrackedTargets)
+    Extrinsics, GroundPlane, Hypothesis, HypothesisSelection, MountTurn, QualityReport,
+    Refinement, SmoothedTrack, Targets, TrackedTargets)
 
 _LOG = logging.getLogger(__name__)
 
@@ -503,6 +503,20 @@ def _data_notes(recording: Recording, corrections: list[str],
     speed), a radar without elevation, standalone GNSS fixes. ``fitted_offset_s``, the
     final fit's clock offset, tells late fixes from a late Odometry."""
     notes = list(corrections)
+    turns = recording.counters.get('mount_turns', 0)
+    if turns:
+        cdeg = recording.counters.get('mount_turn_cdeg', 0)
+        more = f' (the last of {turns} turns)' if turns > 1 else ''
+        notes.append(
+            f'The radar\'s mount turned by {abs(cdeg) / 100:.1f} deg in yaw '
+            f'({"anticlockwise" if cdeg > 0 else "clockwise"} seen from above){more} about '
+            f'{recording.counters.get("mount_turn_at_s", 0)} s into the recording: the '
+            f'{recording.counters.get("mount_turn_passes_before", 0)} vehicle passes before it '
+            'agree with each other, not with those after (the radar in the same place). The '
+            'calibration is of the mount after the turn, from the data after it '
+            f'({recording.counters.get("mount_turn_frames_left_out", 0)} radar frames before '
+            'it left out). Re-aimed on purpose? Then this is the one to use; if not, check '
+            'the bracket.')
     apart_s = recording.counters.get('odometry_other_clock_s')
     if apart_s is not None:
         notes.append(f'The Odometry\'s header stamps lie {abs(apart_s)} s '
@@ -794,12 +808,13 @@ def _calibration_clock_rejoined(recording: Recording, config: CalibConfig,
         recording = replace(recording, counters={**recording.counters,
                                                  'radar_stamp_rejoin_tried': 1})
     try:
-        result: CalibrationResult | None = _run_calibration(recording, config, progress)
+        result: CalibrationResult | None = _calibration_of_current_mount(recording, config,
+                                                                         progress)
     except InsufficientDataError as err:
         result, failure = None, err
     if rejoined is not None:
         try:
-            other = _run_calibration(rejoined, config, progress)
+            other = _calibration_of_current_mount(rejoined, config, progress)
         except InsufficientDataError:
             other = None
         if other is not None and (result is None or _passes(other) > _passes(result)):
@@ -811,6 +826,59 @@ def _calibration_clock_rejoined(recording: Recording, config: CalibConfig,
         assert failure is not None
         raise failure
     return result
+
+
+def _calibration_of_current_mount(recording: Recording, config: CalibConfig,
+                                  progress: ProgressFn | None) -> CalibrationResult:
+    """The calibration of the radar as it is mounted at the end of the recording.
+
+    Why: a mount turned during the recording (re-aimed, a bracket that slipped) gives two
+    calibrations, and averaging them is neither (a thirteenth probe's +3 deg mid-drive: yaw
+    between the two, 1.5 m off). Where stage 6 finds the turn (``hypotheses.mount_turn``),
+    the data before it are left out and the calibration starts again: the mount as it is
+    now is the one a user calibrates for. Too few passes after the turn is a failure that
+    says so, not a calibration of a mount that no longer exists.
+    """
+    turns: list[str] = []
+    while True:
+        try:
+            return _run_calibration(recording, config, progress)
+        except _MountTurned as turned:
+            turn = turned.turn
+            # in words before the cut, while its time counts from the recording's start
+            turns.append(hypotheses.mount_turn_text(turn, recording))
+            _LOG.warning('the radar\'s mount turned by %+.1f deg during the recording: '
+                         'calibrating the data after it', turn.yaw_change_deg)
+            recording = _frames_from(recording, turn.at_ns)
+            recording.counters.update(
+                mount_turns=len(turns), mount_turn_cdeg=int(round(turn.yaw_change_deg * 100)),
+                mount_turn_passes_before=turn.passes_before)
+        except InsufficientDataError as err:
+            if not turns:
+                raise
+            raise type(err)(err.stage, (
+                f'{turns[-1]} The data after it were calibrated on their own and '
+                f'failed: {err.reason.rstrip(".")}. Drive more passes through the view (the '
+                'mount as it is now) and calibrate again.')) from err
+
+
+def _frames_from(recording: Recording, start_ns: int) -> Recording:
+    """The recording's radar frames from ``start_ns`` on (poses kept whole), with counters
+    that say where it was cut and by how much."""
+    first = int(np.searchsorted(recording.frame_stamps_ns, start_ns))
+    targets = recording.targets.subset(recording.targets.frame_index >= first)
+    targets = Targets(targets.positions_m, targets.radial_velocity_mps,
+                      targets.frame_index - first)
+    shift = recording.radar_clock_rejoin_ns
+    counters = dict(recording.counters)
+    counters['mount_turn_frames_left_out'] = (
+        counters.get('mount_turn_frames_left_out', 0) + first)
+    counters['mount_turn_at_s'] = (
+        counters.get('mount_turn_at_s', 0)
+        + int(round((start_ns - int(recording.frame_stamps_ns[0])) * 1e-9)))
+    return replace(recording, frame_stamps_ns=recording.frame_stamps_ns[first:],
+                   targets=targets, counters=counters,
+                   radar_clock_rejoin_ns=None if shift is None else shift[first:])
 
 
 def _passes(result: CalibrationResult) -> int:
@@ -863,7 +931,18 @@ def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibC
             'car alongside), and which group is the calibration vehicle the data cannot '
             'tell. Drive the passes with no vehicle of its size keeping pace with it (ahead, '
             'behind or alongside)'))
+    if selection.mount_turn is not None:
+        raise _MountTurned(selection.mount_turn)
     return ground, clutter_note, tracks, hyps, selection
+
+
+class _MountTurned(Exception):
+    """Stage 6 found the radar's mount turned during the recording (``MountTurn``): the
+    calibration starts again on the data after the turn (``_calibration_of_current_mount``)."""
+
+    def __init__(self, turn: MountTurn) -> None:
+        super().__init__(f'the mount turned by {turn.yaw_change_deg:+.1f} deg')
+        self.turn = turn
 
 
 def _mirrored_axis(recording: Recording, config: CalibConfig) -> str | None:
@@ -886,7 +965,7 @@ def _mirrored_axis(recording: Recording, config: CalibConfig) -> str | None:
         *_, selection = _stages_4_to_6(mirrored, track_targets(mirrored, config), config,
                                        _StageClock(), leaps=False)
         quality.check_vehicle_detection(selection.extrinsics, mirrored, config)
-    except InsufficientDataError:
+    except (InsufficientDataError, _MountTurned):
         return None
     rot = selection.extrinsics.rotation
     return 'z' if abs(math.atan2(rot[2, 1], rot[2, 2])) > math.pi / 2 else 'y'

@@ -231,6 +231,24 @@ class Hypothesis:
 
 
 @dataclass(frozen=True, slots=True)
+class MountTurn:
+    """The radar's mount turned during the recording: two groups of the vehicle's tracks,
+    one before and one after, each agreeing within itself, that place the radar at the same
+    spot looking ``yaw_change_deg`` apart (counter-clockwise seen from above positive).
+
+    at_ns : a radar stamp between the two groups (the turn happened in that gap);
+    gap_ns : (2,) [end of the earlier group, start of the later group];
+    passes_before, passes_after : the vehicle passes each group agrees on.
+    """
+
+    at_ns: int
+    gap_ns: tuple[int, int]
+    yaw_change_deg: float
+    passes_before: int
+    passes_after: int
+
+
+@dataclass(frozen=True, slots=True)
 class HypothesisSelection:
     """Stage 6: the hypotheses, their translation clusters and the accepted one.
 
@@ -241,7 +259,8 @@ class HypothesisSelection:
     [start, end] stamps of the distinct vehicle passes of the accepted tracks (fragments
     of one pass merged); rivals: (horizontal distance [m], passes) of every other agreeing
     group seen in nearly as many passes that places the radar elsewhere
-    (``hypotheses.prune_hypotheses``).
+    (``hypotheses.prune_hypotheses``); mount_turn: where the tracks show the mount turned
+    during the recording (``hypotheses.mount_turn``), else None.
     """
 
     hypotheses: tuple[Hypothesis, ...]
@@ -253,6 +272,7 @@ class HypothesisSelection:
     n_correspondences: int
     pass_intervals_ns: I64 = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     rivals: tuple[tuple[float, int], ...] = ()
+    mount_turn: MountTurn | None = None
 
     @property
     def n_passes(self) -> int:

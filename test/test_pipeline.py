@@ -575,3 +575,71 @@ def test_a_small_clock_step_is_rejoined_where_more_passes_then_agree(
     runs(None, None)
     with pytest.raises(InsufficientDataError, match=r'\(stamped\)'):
         pipeline._calibration_clock_rejoined(rec, CalibConfig(), None)
+
+
+def test_a_turned_mount_is_calibrated_from_the_data_after_the_turn(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Stage 6 names a turn of the mount: the calibration starts again on the frames after
+    it, whose counters say so; a failure there names the turn, and one without a turn is
+    raised as it was."""
+    import types
+
+    from test_recording import T0, _radar_clock_stepping
+    from radar_calib_ros.types import MountTurn
+    rec = _radar_clock_stepping(0.0, 0.0).build()
+    at_ns = T0 + 60 * 10**9
+    turn = MountTurn(at_ns, (at_ns - 10**9, at_ns + 10**9), -4.0, 3, 3)
+    seen: list[Any] = []
+
+    def run(recording: Any, config: Any, progress: Any) -> Any:
+        seen.append(recording)
+        if len(seen) == 1:
+            raise pipeline._MountTurned(turn)
+        if fail_after:
+            raise InsufficientDataError('hypotheses', 'fewer than 3 passes')
+        return types.SimpleNamespace(recording=recording)
+    monkeypatch.setattr(pipeline, '_run_calibration', run)
+    fail_after = False
+    after = pipeline._calibration_of_current_mount(rec, CalibConfig(), None).recording
+    assert after.frame_stamps_ns[0] >= at_ns
+    assert after.frame_stamps_ns.size < rec.frame_stamps_ns.size
+    assert after.targets.frame_index.max() < after.frame_stamps_ns.size
+    assert after.targets.frame_index.min() == 0
+    left_out = rec.frame_stamps_ns.size - after.frame_stamps_ns.size
+    assert after.counters['mount_turn_frames_left_out'] == left_out
+    assert after.counters['mount_turn_cdeg'] == -400 and after.counters['mount_turns'] == 1
+    assert 'mount_turns' not in rec.counters
+    notes = pipeline._data_notes(after, [])
+    assert any('turned by 4.0 deg in yaw (clockwise' in n and f'{left_out} radar frames' in n
+               for n in notes), notes
+    seen.clear()
+    fail_after = True
+    with pytest.raises(InsufficientDataError,
+                       match=r'turned by 4.0 deg.*about 60 s into.*fewer than 3 passes'):
+        pipeline._calibration_of_current_mount(rec, CalibConfig(), None)
+    seen.append(None)  # no turn this time: the failure is the stage's own
+    with pytest.raises(InsufficientDataError, match=r'^hypotheses: fewer than 3 passes$'):
+        pipeline._calibration_of_current_mount(rec, CalibConfig(), None)
+
+
+def test_a_mount_re_aimed_mid_drive_is_found_and_the_mount_after_it_calibrated(
+        tmp_path: Any) -> None:
+    """Eight minutes, the mount turned 4 deg between the third and fourth pass: the result
+    is the mount after the turn (averaged over both it was 3.7 m off at a 1 m sigma)."""
+    from radar_calib_ros.groundtruth import calibration_errors, load_ground_truth
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.sim import simulate
+
+    summary = simulate(tmp_path / 'bag', seed=2, duration_s=480.0, mount_turn=(226.0, 4.0))
+    config = CalibConfig.from_file(summary.paths.params)
+    result = pipeline.run_calibration(read_recording(summary.paths.bag, config), config)
+    truth = load_ground_truth(summary.paths.bag)
+    assert truth is not None and truth['mount_turn'] == {'at_s': 226.0, 'yaw_deg': 4.0}
+    cal = result.calibration(config)
+    errors = calibration_errors(cal, truth)
+    assert errors['horizontal_m'] < 0.3 and errors['rotation_deg'] < 0.5, errors
+    before = calibration_errors(cal, {**truth, **truth['mount_before']})
+    assert before['rotation_deg'] > 3.0, before
+    notes = cal['quality']['data_notes']
+    assert any('mount turned by 4.' in n and 'anticlockwise' in n for n in notes), notes
+    assert result.recording.counters['mount_turn_frames_left_out'] > 1000

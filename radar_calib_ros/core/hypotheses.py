@@ -25,8 +25,8 @@ from radar_calib_ros.core.vehicle import box_limits, vehicle_to_world, world_to_
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.types import (
-    F64, I64, Extrinsics, GroundPlane, Hypothesis, HypothesisSelection, PoseSamples,
-    SmoothedTrack, VehicleTrack)
+    F64, I64, Extrinsics, GroundPlane, Hypothesis, HypothesisSelection, MountTurn,
+    PoseSamples, SmoothedTrack, VehicleTrack)
 
 _LOG = logging.getLogger(__name__)
 _STAGE = 'hypotheses'
@@ -446,13 +446,111 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
                           if n >= accepted.n_passes - _RIVAL_PASSES_BEHIND
                           and d > _RIVAL_EPS_FACTOR * cfg.eps_m))
     accepted_ids = tuple(int(hyps[i].track_id) for i in accepted.core)
+    turn = mount_turn(accepted, hyps, hyp_tracks, variants, recording, config)
     extrinsics = Extrinsics(accepted.fit.rotation @ ground.rotation_level,
                             accepted.fit.translation_m, 0.0)
     _LOG.debug('accepted cluster %d: %d of %d tracks, %d passes, mean angle %.3f deg, '
                'rms %.3f m', accepted.label, accepted.core.size, accepted.members.size,
                accepted.n_passes, accepted.mean_angle_deg, accepted.fit.rms_m)
     return HypothesisSelection(tuple(hyps), labels, accepted.label, mean_angles, accepted_ids,
-                               extrinsics, accepted.n_correspondences, accepted.passes, rivals)
+                               extrinsics, accepted.n_correspondences, accepted.passes, rivals,
+                               turn)
+
+
+#: The least turn of the mount [deg] that :func:`mount_turn` names, and how many standard
+#: errors of the difference of the two groups' mean rotations it must exceed. Why these: a
+#: turn only splits the vehicle's tracks once it moves them by more than
+#: ``hypotheses.max_cluster_rms_m`` (1.2 m: 1.7 deg at 40 m); smaller turns stay in one
+#: group, where the final fit averages them and the jackknife over passes widens the
+#: uncertainty. The vehicle's own tracks scatter by 0.3-1 deg in yaw, the tracks of one pass
+#: alike (so the standard error counts passes, not tracks).
+_MOUNT_TURN_MIN_DEG = 1.0
+_MOUNT_TURN_STANDARD_ERRORS = 3.0
+#: The least share of the two groups' tracks that one time split must put on their own
+#: side for the groups to be taken as before and after a turn.
+_MOUNT_TURN_AGREEMENT = 0.8
+#: E|x - y| = 2 sigma / sqrt(pi) for two normal draws: the mean pairwise angle over sigma.
+_PAIRWISE_PER_SIGMA = 2.0 / np.sqrt(np.pi)
+
+
+def mount_turn(accepted: _Cluster, hyps: Sequence[Hypothesis],
+               hyp_tracks: Sequence[SmoothedTrack],
+               variants: Sequence[dict[int, Correspondences]], recording: Recording,
+               config: CalibConfig) -> MountTurn | None:
+    """Whether the radar's mount turned during the recording, from the accepted cluster.
+
+    A mount turned about the radar (re-aimed by a technician, a bracket that slipped, a
+    pole hit) leaves the radar where it was, so the vehicle's hypotheses before and after
+    stay in one translation cluster; the core's fit keeps one side and drops the other's
+    tracks, and the final fit, which takes every pass the result places the vehicle in,
+    averaged both mounts (a thirteenth probe's +3 deg re-aim mid-drive: yaw between the
+    two, 1.5 m off, the uncertainty inflated and no word of a change). The dropped members
+    are reduced to a core of their own; when one moment in time parts the two cores' tracks
+    (all but a fifth), the tracks on each side make a core again, and when both agree
+    across ``hypotheses.min_passes`` passes or more and a turn apart that their own
+    scatter does not explain, the mount turned between them.
+    """
+    rest = np.setdiff1d(accepted.members, accepted.core)
+    if rest.size < 2 or accepted.fit is None:
+        return None
+    other = min((_cluster_core(accepted.label, rest, hyps, hyp_tracks, corrs, recording,
+                               config) for corrs in variants),
+                key=lambda c: (c.fit is None, -c.n_passes, _rms(c)))
+    # Both sides in as many passes as a calibration needs: two passes of tracks that fit
+    # the vehicle badly the same way (short tracks late in a drive, a turning movement) make
+    # a group 5 deg off without any turn (one in 73 simulated drives at two)
+    least = config.hypotheses.min_passes
+    if other.fit is None or other.n_passes < least:
+        return None
+
+    # Where the two groups part in time: a track or two of one side can fit the other
+    # side's core by chance (a close pass moves little when the mount turns), so the
+    # split that puts most of each group on its own side is taken, and both sides are
+    # reduced to their cores again from the tracks on each side of it.
+    union = np.concatenate([accepted.core, other.core])
+    starts = np.array([int(hyp_tracks[i].stamps_ns[0]) for i in union], np.int64)
+    in_other = np.arange(union.size) >= accepted.core.size
+    order = np.argsort(starts, kind='stable')
+    # tracks of the other group up to each split (and of the accepted after it), both ways
+    other_first = np.cumsum(in_other[order]) + (~in_other[order])[::-1].cumsum()[::-1] - (
+        ~in_other[order])
+    accepted_first = np.cumsum(~in_other[order]) + in_other[order][::-1].cumsum()[::-1] - (
+        in_other[order])
+    split_scores = np.maximum(other_first, accepted_first)
+    best = int(np.argmax(split_scores))
+    if split_scores[best] < _MOUNT_TURN_AGREEMENT * union.size or best + 1 >= union.size:
+        return None
+    split_ns = int(starts[order][best + 1])
+    sides = [min((_cluster_core(accepted.label, side, hyps, hyp_tracks, corrs, recording,
+                                config) for corrs in variants),
+                 key=lambda c: (c.fit is None, -c.n_passes, _rms(c)))
+             for side in (union[starts < split_ns], union[starts >= split_ns])]
+    before, after = sides
+    if (before.fit is None or after.fit is None
+            or min(before.n_passes, after.n_passes) < least):
+        return None
+    gap = (max(int(hyp_tracks[i].stamps_ns[-1]) for i in before.core),
+           min(int(hyp_tracks[i].stamps_ns[0]) for i in after.core))
+    assert before.fit is not None and after.fit is not None
+    turn = float(registration.rotation_angle_deg(before.fit.rotation, after.fit.rotation))
+    standard_error = np.sqrt(sum((c.mean_angle_deg / _PAIRWISE_PER_SIGMA) ** 2 / c.n_passes
+                                 for c in (before, after)))
+    if turn < max(_MOUNT_TURN_MIN_DEG, _MOUNT_TURN_STANDARD_ERRORS * standard_error):
+        return None
+    # the hypotheses' rotations are yaw-only (the levelled frame): the sign from z
+    rel = before.fit.rotation.T @ after.fit.rotation
+    yaw_change = float(np.degrees(np.arctan2(rel[1, 0], rel[0, 0])))
+    # The turn happened in the gap, and passes in it belong to neither group: the data are
+    # cut where the vehicle was last out of reach before the later group's first pass, so
+    # that pass is whole and nothing earlier is taken for the new mount.
+    group = [hyp_tracks[i] for i in (*before.core, *after.core)]
+    reach = max(float(np.hypot(t.positions_m[:, 0], t.positions_m[:, 1]).max())
+                for t in group) + config.hypotheses.pass_margin_m
+    away = (away_stamps_ns(recording.vehicle, after.fit.translation_m[:2], reach)
+            - pose_stamps_ns(np.zeros(1, np.int64), config.sync.time_offset)[0])
+    away = away[(away > gap[0]) & (away < gap[1])]
+    at_ns = int(away[-1]) if away.size else (gap[0] + gap[1]) // 2
+    return MountTurn(at_ns, gap, yaw_change, before.n_passes, after.n_passes)
 
 
 def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],
@@ -507,6 +605,17 @@ def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],
                     if members.size > 1 else 0.0, core, passes,
                     _mean_pairwise_angle_deg(np.array([hyps[i].rotation for i in core]))
                     if core.size else float('inf'), fit, n_corr)
+
+
+def mount_turn_text(turn: MountTurn, recording: Recording) -> str:
+    """The turn in words, for a note or a failure."""
+    where = 'anticlockwise' if turn.yaw_change_deg > 0 else 'clockwise'
+    at_s = (turn.at_ns - int(recording.frame_stamps_ns[0])) * 1e-9
+    return (f'The radar\'s mount turned by {abs(turn.yaw_change_deg):.1f} deg in yaw ({where} '
+            f'seen from above) about {at_s:.0f} s into the recording: {turn.passes_before} '
+            f'vehicle pass{"es" if turn.passes_before != 1 else ""} before it and '
+            f'{turn.passes_after} after it agree within their side, not across, with the '
+            'radar in one place (re-aimed, or a bracket that slipped?).')
 
 
 def _track_rms(rotation: F64, translation_m: F64, source: F64, target: F64, owner: I64,

@@ -433,9 +433,13 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
                & (azimuth < radar_view[2] - margin) & (speed >= _DRIVE_MIN_SPEED_MPS))
     passes = hypotheses.passes_in_view_ns(vehicle, in_view, extrinsics.translation_m[:2],
                                           reach, config)
+    offset_s = config.sync.time_offset + extrinsics.time_offset_s
+    if recording.counters.get('mount_turn_frames_left_out'):
+        # the drives before a turn of the mount were left out on purpose, not lost
+        start = hypotheses.pose_stamps_ns(recording.frame_stamps_ns[:1], offset_s)[0]
+        passes = passes[passes[:, 1] >= start]
     if passes.shape[0] == 0:
         return []
-    offset_s = config.sync.time_offset + extrinsics.time_offset_s
     fitted = np.sort(hypotheses.pose_stamps_ns(recording.target_stamps_ns[fitted_index],
                                                offset_s))
     n_fitted = (np.searchsorted(fitted, passes[:, 1], side='right')

@@ -25,7 +25,7 @@ import os
 import shutil
 import time
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -95,7 +95,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
              storage: str = 'mcap', scenario: str = 'baseline',
              scatter_model: str | None = None,
              mount_seed: int | None = None,
-             max_unambiguous_velocity_mps: float = 0.0) -> SimulationSummary:
+             max_unambiguous_velocity_mps: float = 0.0,
+             mount_turn: tuple[float, float] | None = None) -> SimulationSummary:
     """Simulate a calibration drive past a roadside radar and write it as a rosbag2 bag.
 
     Parameters
@@ -127,6 +128,11 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         A radar whose radial velocities fold beyond +-this speed (0: none): the waveform of
         a radar tuned for range resolves Doppler only within an interval, and a car faster
         than its half-width along the line of sight is reported wrapped into it.
+    mount_turn : (at_s, yaw_deg) or None, default=None
+        The (first) radar's mount turned about the vertical by ``yaw_deg`` (anticlockwise
+        seen from above) ``at_s`` seconds into the recording, the radar staying where it
+        is: a technician re-aiming it, a bracket that slipped. The ground truth is the mount
+        after the turn (the radar as it is now); ``mount_before`` records the other.
 
     Returns
     -------
@@ -153,6 +159,10 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
                           '0 (no folding) nor within [2, 200] m/s')
     if mount_seed is not None and (not isinstance(mount_seed, int) or mount_seed < 0):
         raise ConfigError(f'mount seed must be a non-negative integer, got {mount_seed!r}')
+    if mount_turn is not None and not (0.0 < mount_turn[0] < float(duration_s)
+                                       and 0.0 < abs(mount_turn[1]) <= 90.0):
+        raise ConfigError(f'mount turn {mount_turn!r}: the time must lie within the recording '
+                          f'(0, {duration_s:g}) s and the turn within +-90 deg, not 0')
     out = Path(out_dir)
     if out.exists():
         raise BagReadError(f'{str(out)!r} exists already; not overwriting')
@@ -195,6 +205,11 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
         for k, (mount, streams_k) in enumerate(zip(
             mounts, [(r_times, r_radar, r_stamps, r_clock)] + [tuple(g[1:]) for g in extra_rngs]))]
     first = runs[0]
+    before: Extrinsics | None = None
+    if mount_turn is not None:
+        before = first.extrinsics
+        first = _turned_mount(first, *mount_turn)
+        runs[0] = first
 
     # --- GNSS / INS ---------------------------------------------------------------------
     gnss = simulate_gnss(log, frame, scene.ground, spec.vehicle, duration, r_gnss)
@@ -227,6 +242,11 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
                        run.ground_z, passes, log, templates.skin_weight[0], gnss,
                        run.times.size, run.targets, epoch_ns, n_messages)
         truth['mount_seed'] = mount_seed
+        if before is not None and run is first:
+            assert mount_turn is not None
+            truth['mount_before'] = calibration_dict(before, frame, stamp=truth['stamp'])
+            truth['mount_turn'] = {'at_s': float(mount_turn[0]),
+                                   'yaw_deg': float(mount_turn[1])}
         truth['max_unambiguous_velocity_mps'] = radar_model.max_unambiguous_velocity_mps
         if multi:
             truth.update(radar_frame=run.frame_id, radar_topic=run.topic)
@@ -305,6 +325,27 @@ def _simulate_one_radar(spec: Scenario, mount: Any, scene: Any, log: TrafficLog,
                                      * 1e9).astype(np.int64)
     return _RadarRun(frame_id, topic, mount, Extrinsics(rotation, translation, clock_offset),
                      ground_z, times, targets, stamps_ns, receive_ns)
+
+
+def _turned_mount(run: _RadarRun, at_s: float, yaw_deg: float) -> _RadarRun:
+    """The run with its mount turned about the vertical by ``yaw_deg`` from ``at_s`` on.
+
+    The frames after the turn are re-expressed in the turned sensor frame: ranges and
+    radial velocities do not change under a rotation about the radar, azimuths and
+    elevations do. The field of view stays where the scan was simulated, a few degrees off
+    at its edges after the turn: the edges carry no part of the calibration."""
+    turn = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
+    rotation = turn @ run.extrinsics.rotation
+    # sensor before -> sensor after: x_after = R_after^T R_before x_before
+    change = rotation.T @ run.extrinsics.rotation
+    targets = run.targets
+    after = run.times[targets.frame] >= at_s
+    position = targets.position_m.copy()
+    position_true = targets.position_true_m.copy()
+    position[after] = position[after] @ change.T
+    position_true[after] = position_true[after] @ change.T
+    return replace(run, extrinsics=replace(run.extrinsics, rotation=rotation),
+                   targets=replace(targets, position_m=position, position_true_m=position_true))
 
 
 def _write_run_targets(path: Path, run: _RadarRun, log: TrafficLog, scene: Any,

@@ -139,3 +139,44 @@ def test_bad_arguments(tmp_path: Path) -> None:
     with pytest.raises(BagReadError, match='exists'):
         simulate(tmp_path / 'exists', duration_s=10.0)
     assert not (tmp_path / 'x').exists()
+
+
+def test_a_turned_mount_moves_the_targets_after_the_turn(tmp_path: Path) -> None:
+    """The mount turned 10 deg at 45 s: the vehicle's true targets lie on it in the world
+    through the mount before the turn for earlier frames and through the mount after it
+    (the ground truth's) for later ones, never the other way round."""
+    from scipy.spatial.transform import Rotation
+
+    from sim_truth import load, vehicle_config
+    from radar_calib_ros.core import vehicle as vehicle_box
+    bag = tmp_path / 'turned'
+    simulate(bag, seed=7, duration_s=90.0, mount_turn=(45.0, 10.0))
+    truth, z = load(bag)
+    before = Rotation.from_quat(truth['mount_before']['quaternion_xyzw']).as_matrix()
+    after = Rotation.from_quat(truth['quaternion_xyzw']).as_matrix()
+    turn = Rotation.from_matrix(after @ before.T).as_rotvec(degrees=True)
+    np.testing.assert_allclose(turn, [0.0, 0.0, 10.0], atol=1e-6)
+    assert truth['mount_turn'] == {'at_s': 45.0, 'yaw_deg': 10.0}
+    sel = z['is_calibration_vehicle']
+    frame = z['frame_index'][sel]
+    late = z['frame_time_s'][frame] >= 45.0
+    assert late.any() and (~late).any()
+    box = vehicle_config(truth)
+
+    def inside(rotation: np.ndarray) -> np.ndarray:
+        world = (z['position_true_sensor_m'][sel].astype(np.float64) @ rotation.T
+                 + z['radar_translation_m'])
+        local = vehicle_box.world_to_vehicle(world, z['vehicle_position_m'][frame],
+                                             z['vehicle_yaw_rad'][frame])
+        return vehicle_box.box_distance(local, box) < 0.5
+
+    right = np.where(late, inside(after), inside(before))
+    wrong = np.where(late, inside(before), inside(after))
+    assert right.mean() > 0.9 and wrong.mean() < 0.5, (right.mean(), wrong.mean())
+
+
+def test_a_mount_turn_outside_the_recording_or_of_nothing_is_refused(tmp_path: Path) -> None:
+    for turn in ((0.0, 3.0), (20.0, 3.0), (5.0, 0.0), (5.0, 120.0)):
+        with pytest.raises(ConfigError, match='mount turn'):
+            simulate(tmp_path / 'x', duration_s=10.0, mount_turn=turn)
+    assert not (tmp_path / 'x').exists()
