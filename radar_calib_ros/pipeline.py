@@ -505,11 +505,11 @@ def _data_notes(recording: Recording, corrections: list[str],
     notes = list(corrections)
     turns = recording.counters.get('mount_turns', 0)
     if turns:
-        cdeg = recording.counters.get('mount_turn_cdeg', 0)
+        words = hypotheses.turn_words(recording.counters.get('mount_turn_cdeg', 0) / 100,
+                                      recording.counters.get('mount_turn_tilt_cdeg', 0) / 100)
         more = f' (the last of {turns} turns)' if turns > 1 else ''
         notes.append(
-            f'The radar\'s mount turned by {abs(cdeg) / 100:.1f} deg in yaw '
-            f'({"anticlockwise" if cdeg > 0 else "clockwise"} seen from above){more} about '
+            f'The radar\'s mount turned {words}{more} about '
             f'{recording.counters.get("mount_turn_at_s", 0)} s into the recording: the '
             f'{recording.counters.get("mount_turn_passes_before", 0)} vehicle passes before it '
             'agree with each other, not with those after (the radar in the same place). The '
@@ -847,11 +847,11 @@ def _calibration_of_current_mount(recording: Recording, config: CalibConfig,
             turn = turned.turn
             # in words before the cut, while its time counts from the recording's start
             turns.append(hypotheses.mount_turn_text(turn, recording))
-            _LOG.warning('the radar\'s mount turned by %+.1f deg during the recording: '
-                         'calibrating the data after it', turn.yaw_change_deg)
+            _LOG.warning('%s Calibrating the data after it.', turns[-1])
             recording = _frames_from(recording, turn.at_ns)
             recording.counters.update(
                 mount_turns=len(turns), mount_turn_cdeg=int(round(turn.yaw_change_deg * 100)),
+                mount_turn_tilt_cdeg=int(round(turn.tilt_change_deg * 100)),
                 mount_turn_passes_before=turn.passes_before)
         except InsufficientDataError as err:
             if not turns:
@@ -941,7 +941,8 @@ class _MountTurned(Exception):
     calibration starts again on the data after the turn (``_calibration_of_current_mount``)."""
 
     def __init__(self, turn: MountTurn) -> None:
-        super().__init__(f'the mount turned by {turn.yaw_change_deg:+.1f} deg')
+        super().__init__('the mount turned '
+                         + hypotheses.turn_words(turn.yaw_change_deg, turn.tilt_change_deg))
         self.turn = turn
 
 
@@ -1078,6 +1079,9 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                                                   config, ground_normal=ground.normal)
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
+        turn = refinement.diagnostics.get('mount_turn')
+        if turn is not None:
+            raise _MountTurned(turn)
         held = refinement.diagnostics.get('time_offset_held_sigma_s')
         if held is not None:
             corrections.append(

@@ -238,7 +238,9 @@ class MountTurn:
 
     at_ns : a radar stamp between the two groups (the turn happened in that gap);
     gap_ns : (2,) [end of the earlier group, start of the later group];
-    passes_before, passes_after : the vehicle passes each group agrees on.
+    passes_before, passes_after : the vehicle passes each group agrees on;
+    tilt_change_deg : the turn about a horizontal axis (pitch and roll), where the final
+    fit found it (stage 6 sees yaw only).
     """
 
     at_ns: int
@@ -246,6 +248,7 @@ class MountTurn:
     yaw_change_deg: float
     passes_before: int
     passes_after: int
+    tilt_change_deg: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

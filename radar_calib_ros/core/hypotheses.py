@@ -540,17 +540,27 @@ def mount_turn(accepted: _Cluster, hyps: Sequence[Hypothesis],
     # the hypotheses' rotations are yaw-only (the levelled frame): the sign from z
     rel = before.fit.rotation.T @ after.fit.rotation
     yaw_change = float(np.degrees(np.arctan2(rel[1, 0], rel[0, 0])))
-    # The turn happened in the gap, and passes in it belong to neither group: the data are
-    # cut where the vehicle was last out of reach before the later group's first pass, so
-    # that pass is whole and nothing earlier is taken for the new mount.
     group = [hyp_tracks[i] for i in (*before.core, *after.core)]
     reach = max(float(np.hypot(t.positions_m[:, 0], t.positions_m[:, 1]).max())
                 for t in group) + config.hypotheses.pass_margin_m
-    away = (away_stamps_ns(recording.vehicle, after.fit.translation_m[:2], reach)
-            - pose_stamps_ns(np.zeros(1, np.int64), config.sync.time_offset)[0])
-    away = away[(away > gap[0]) & (away < gap[1])]
-    at_ns = int(away[-1]) if away.size else (gap[0] + gap[1]) // 2
+    at_ns = turn_moment_ns(recording.vehicle, after.fit.translation_m[:2], reach, gap,
+                           config.sync.time_offset)
     return MountTurn(at_ns, gap, yaw_change, before.n_passes, after.n_passes)
+
+
+def turn_moment_ns(vehicle: VehicleTrack, sensor_xy_m: F64, reach_m: float,
+                   gap_ns: tuple[int, int], time_offset_s: float) -> int:
+    """The radar stamp to cut a recording at for a turn of the mount in ``gap_ns`` (the
+    end of the last pass before it, the start of the first after it, radar stamps).
+
+    The turn happened in the gap, and the data in it belong to neither side: the cut is
+    where the vehicle was last farther than ``reach_m`` from the radar before the first
+    pass after the turn, so that pass is whole and nothing earlier is taken for the new
+    mount; the middle of the gap where it never was."""
+    away = (away_stamps_ns(vehicle, sensor_xy_m, reach_m)
+            - pose_stamps_ns(np.zeros(1, np.int64), time_offset_s)[0])
+    away = away[(away > gap_ns[0]) & (away < gap_ns[1])]
+    return int(away[-1]) if away.size else (gap_ns[0] + gap_ns[1]) // 2
 
 
 def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],
@@ -607,12 +617,23 @@ def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],
                     if core.size else float('inf'), fit, n_corr)
 
 
+def turn_words(yaw_deg: float, tilt_deg: float) -> str:
+    """'by 3.0 deg in yaw (anticlockwise seen from above)[ and 1.0 deg in pitch and roll]'
+    (either part alone where the other is under a tenth of a degree)."""
+    parts = []
+    if abs(yaw_deg) >= 0.05 or tilt_deg < 0.05:
+        where = 'anticlockwise' if yaw_deg > 0 else 'clockwise'
+        parts.append(f'{abs(yaw_deg):.1f} deg in yaw ({where} seen from above)')
+    if tilt_deg >= 0.05:
+        parts.append(f'{tilt_deg:.1f} deg in pitch and roll')
+    return 'by ' + ' and '.join(parts)
+
+
 def mount_turn_text(turn: MountTurn, recording: Recording) -> str:
     """The turn in words, for a note or a failure."""
-    where = 'anticlockwise' if turn.yaw_change_deg > 0 else 'clockwise'
     at_s = (turn.at_ns - int(recording.frame_stamps_ns[0])) * 1e-9
-    return (f'The radar\'s mount turned by {abs(turn.yaw_change_deg):.1f} deg in yaw ({where} '
-            f'seen from above) about {at_s:.0f} s into the recording: {turn.passes_before} '
+    return (f'The radar\'s mount turned {turn_words(turn.yaw_change_deg, turn.tilt_change_deg)}'
+            f' about {at_s:.0f} s into the recording: {turn.passes_before} '
             f'vehicle pass{"es" if turn.passes_before != 1 else ""} before it and '
             f'{turn.passes_after} after it agree within their side, not across, with the '
             'radar in one place (re-aimed, or a bracket that slipped?).')

@@ -71,13 +71,14 @@ from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.core import reflection, uncertainty
+from radar_calib_ros.core import hypotheses, reflection, uncertainty
 from radar_calib_ros.core.vehicle import (box_corners_world, box_distance, box_limits,
                                           world_to_vehicle)
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.types import (
-    F64, I64, Extrinsics, HypothesisSelection, Refinement, TrackedTargets, VehicleTrack)
+    F64, I64, Extrinsics, HypothesisSelection, MountTurn, Refinement, TrackedTargets,
+    VehicleTrack)
 
 _LOG = logging.getLogger(__name__)
 
@@ -1379,6 +1380,9 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                                config, fit, rounds, scatter)
     if halves is not None:
         diagnostics['halves_rotation_deg'], diagnostics['halves_translation_m'] = halves
+        turn = _turn_between_passes(pc, jp.T @ jp, cov7, data, recording, est, config)
+        if turn is not None:
+            diagnostics['mount_turn'] = turn
         diagnostics['advice'] = [
             f'The first and the second half of the drives disagree by {halves[0]:.2f} deg and '
             f'{100 * halves[1]:.0f} cm, far beyond their uncertainty: the radar may have moved '
@@ -1725,6 +1729,46 @@ def _halves_shift(passes: uncertainty.PassCovariance, prior_hessian: F64) -> F64
     # influences[g]: the step that leaving half g out takes, i.e. towards the other half
     shift: F64 = influences[1] - influences[0]
     return shift
+
+
+def _turn_between_passes(passes: uncertainty.PassCovariance, prior_hessian: F64, cov7: F64,
+                         data: _Selected, recording: Recording, estimate: Extrinsics,
+                         config: CalibConfig) -> MountTurn | None:
+    """Where the drives' halves disagree: the moment between two passes at which the
+    rotations of the passes before and after differ most beyond the reported covariance,
+    as a turn of the mount, when that is beyond ``_HALVES_CHI2`` with at least
+    ``hypotheses.min_passes`` passes on each side; else None.
+
+    Why: a turn that stage 6 did not see (its per-track rotations scatter by a degree, and
+    a pitch or roll does not show in them at all) leaves a blend of two mounts, which the
+    halves check only widens the uncertainty over (a simulated 4 deg re-aim between the
+    third and the fourth of six passes: right, at 2.9 deg 1 sigma). Split where the step is,
+    each side is one mount, and the later one is the radar as it is now.
+    """
+    n, least = passes.n_passes, config.hypotheses.min_passes
+    best: tuple[float, int, F64] | None = None
+    for k in range(least, n - least + 1):
+        influences = uncertainty.group_influences(
+            passes, (np.arange(n) >= k).astype(np.int64), prior_hessian)
+        # the later side's estimate minus the earlier's (leaving a side out steps towards
+        # the other); the difference of two part-estimates has G/k + G/(G-k) times the
+        # variance of the whole
+        step = influences[0] - influences[1]
+        chi2 = float(step[:3] @ np.linalg.solve((n / k + n / (n - k)) * cov7[:3, :3],
+                                                step[:3]))
+        if chi2 > _HALVES_CHI2 and (best is None or chi2 > best[0]):
+            best = (chi2, k, step)
+    if best is None:
+        return None
+    _, k, step = best
+    stamps = recording.target_stamps_ns[data.index]
+    gap = (int(stamps[data.pass_id == k - 1].max()), int(stamps[data.pass_id == k].min()))
+    local = recording.targets.positions_m[data.index]
+    reach = float(np.hypot(local[:, 0], local[:, 1]).max()) + config.hypotheses.pass_margin_m
+    at_ns = hypotheses.turn_moment_ns(recording.vehicle, estimate.translation_m[:2], reach,
+                                      gap, config.sync.time_offset + estimate.time_offset_s)
+    yaw, tilt = math.degrees(step[2]), math.degrees(math.hypot(step[0], step[1]))
+    return MountTurn(at_ns, gap, yaw, k, n - k, tilt)
 
 
 def _position_spread(data: _Selected, poses: _Poses, offset_s: float) -> float:

@@ -1109,3 +1109,32 @@ def test_a_clock_step_between_passes_is_told_from_a_drift() -> None:
     left = _pass_offsets(lambda t: 0.0 if t < 500.0 else -0.01, noise_s=0.002)
     rest = refine._clock_step(left, at_s=found.step_at_s)
     assert rest is not None and rest.step_s == pytest.approx(-0.01, abs=0.003)
+
+
+def test_a_radar_turned_between_passes_is_placed_in_time_by_the_final_fit(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the halves disagree, the split between passes with the largest step is taken
+    as a turn of the mount: at the pass where the turn was made, with its yaw (the later
+    side's minus the earlier's) and without a tilt; the scene unturned has none."""
+    from radar_calib_ros.types import MountTurn
+
+    scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
+    n_pass = int(scene.pass_of_target.max()) + 1
+    at = n_pass // 2 + 1
+    stamps = scene.recording.target_stamps_ns
+    starts = np.sort([stamps[scene.pass_of_target == p].min() for p in range(n_pass)])
+    later = stamps >= starts[at]
+    targets = scene.recording.targets
+    turn = Rotation.from_euler('z', -1.5, degrees=True).as_matrix()
+    positions = targets.positions_m.copy()
+    positions[later] = positions[later] @ turn.T
+    turned = dataclasses.replace(scene, recording=dataclasses.replace(
+        scene.recording, targets=dataclasses.replace(targets, positions_m=positions)))
+    monkeypatch.setattr(refine, '_HALVES_CHI2', 1.0)
+    found = _run(turned).diagnostics.get('mount_turn')
+    assert isinstance(found, MountTurn), found
+    assert (found.passes_before, found.passes_after) == (at, n_pass - at)
+    assert 1.0 < found.yaw_change_deg < 2.0 and found.tilt_change_deg < 0.3, found
+    assert found.gap_ns[0] < found.at_ns <= stamps[later].min()
+    plain = _run(scene).diagnostics.get('mount_turn')
+    assert plain is None or abs(plain.yaw_change_deg) < 0.5
