@@ -19,6 +19,7 @@ from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import associate, cluster, ground_plane, hypotheses, moving, polygon
 from radar_calib_ros.core import quality, refine, track, velocity_folding
 from radar_calib_ros.errors import InsufficientDataError
+from radar_calib_ros.io.geo import zone_note
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.result import calibration_dict, quality_dict
 from radar_calib_ros.types import (
@@ -223,14 +224,71 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
     agreements of other road users at some offset are still refused by the final
     detection check.
     """
+    max_off = config.sync.max_time_offset
+    retry = config.sync.estimate_time_offset and max_off >= _CLOCK_STEP_S
     try:
         hyps = hypotheses.generate_hypotheses(tracks, recording, ground, config)
-        return hyps, hypotheses.prune_hypotheses(hyps, tracks, recording, ground, config)
+        selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, config)
     except InsufficientDataError as first:
-        max_off = config.sync.max_time_offset
-        if not config.sync.estimate_time_offset or max_off < _CLOCK_STEP_S:
+        if not retry:
             raise
         failure = first
+    else:
+        # A clock offset on straight roads driven both ways shifts the two directions
+        # apart along the road, so only one direction agrees, and the rest of the method
+        # takes its passes alone: an independent motorway gantry, radar 50 ms late, kept
+        # 3 eastbound passes of 6 and was 1.4-2.4 m off at a 0.5 m sigma. Where fewer than
+        # ``_AGREEING_SHARE`` of the passes in view agree, the other offsets are tried as
+        # well, and one on which ``_AGREEING_GAIN`` more passes agree is taken.
+        if not retry or selection.n_passes >= _AGREEING_SHARE * selection.passes_in_view:
+            return hyps, selection
+        shifted = _best_shifted(tracks, recording, ground, config,
+                                key=lambda s: (s.n_passes, len(s.accepted_track_ids)))
+        if shifted is None or shifted[2].n_passes < selection.n_passes + _AGREEING_GAIN:
+            return hyps, selection
+        _LOG.info('%d of the %d passes in view agree as stamped, %d with the radar stamps '
+                  'shifted by %+.2f s', selection.n_passes, selection.passes_in_view,
+                  shifted[2].n_passes, shifted[0])
+        return shifted[1], _shifted_selection(shifted[2], shifted[0])
+    best = _best_shifted(tracks, recording, ground, config,
+                         key=lambda s: (len(s.accepted_track_ids), s.n_correspondences))
+    if best is None:
+        reason = f'{failure.reason} (also at clock offsets up to +-{max_off:g} s)'
+        leap = _leap_offset(tracks, recording, ground, config) if leaps else None
+        if leap is not None:
+            reason += (f'; they agree with the radar stamps shifted by {leap:+g} s, a whole '
+                       'number of leap seconds (GPS, UTC and TAI time differ by 18, 19 and 37 '
+                       f's): set sync.time_offset to {config.sync.time_offset + leap:g} and '
+                       'calibrate again')
+        raise InsufficientDataError(failure.stage, reason)
+    offset, hyps, selection = best
+    # said (or not) once the final refinement has fitted the offset: ``_shift_note``
+    _LOG.info('the hypotheses agree only with the radar stamps shifted by %+.2f s', offset)
+    return hyps, _shifted_selection(selection, offset)
+
+
+#: The least share of the vehicle's passes through the view that must agree at stage 6
+#: before other clock offsets are tried on success too (a direction of travel lost to an
+#: offset is half of them; other road users hiding a pass or two are fewer).
+_AGREEING_SHARE = 0.6
+#: ... and how many more passes another offset must bring in to be taken: one pass on the
+#: edge of agreement comes and goes with a shift of 50 ms, the other direction's many do not
+_AGREEING_GAIN = 2
+
+
+def _shifted_selection(selection: HypothesisSelection, offset_s: float) -> HypothesisSelection:
+    ext = selection.extrinsics
+    return replace(selection, extrinsics=Extrinsics(ext.rotation, ext.translation_m,
+                                                    ext.time_offset_s + offset_s))
+
+
+def _best_shifted(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground: GroundPlane,
+                  config: CalibConfig, key: Callable[[HypothesisSelection], tuple[int, int]]
+                  ) -> tuple[float, list[Hypothesis], HypothesisSelection] | None:
+    """Stage 6 at the radar stamps shifted by each offset within ``sync.max_time_offset``
+    (and around the fixes' own clock, see ``_hypotheses``): the (offset, hypotheses,
+    selection) whose selection ranks highest by ``key``, None where none agrees."""
+    max_off = config.sync.max_time_offset
     n_steps = int(max_off / _CLOCK_STEP_S + 1e-9)
     offsets = [sign * k * _CLOCK_STEP_S for k in range(1, n_steps + 1) for sign in (1, -1)]
     # Where the fixes' stamps were found to lag the Odometry's, the poses run on the
@@ -248,24 +306,10 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
             selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, shifted)
         except InsufficientDataError:
             continue
-        score = (len(selection.accepted_track_ids), selection.n_correspondences)
+        score = key(selection)
         if best is None or score > best[0]:
             best = (score, offset, hyps, selection)
-    if best is None:
-        reason = f'{failure.reason} (also at clock offsets up to +-{max_off:g} s)'
-        leap = _leap_offset(tracks, recording, ground, config) if leaps else None
-        if leap is not None:
-            reason += (f'; they agree with the radar stamps shifted by {leap:+g} s, a whole '
-                       'number of leap seconds (GPS, UTC and TAI time differ by 18, 19 and 37 '
-                       f's): set sync.time_offset to {config.sync.time_offset + leap:g} and '
-                       'calibrate again')
-        raise InsufficientDataError(failure.stage, reason)
-    _, offset, hyps, selection = best
-    # said (or not) once the final refinement has fitted the offset: ``_shift_note``
-    _LOG.info('the hypotheses agree only with the radar stamps shifted by %+.2f s', offset)
-    ext = selection.extrinsics
-    shifted_ext = Extrinsics(ext.rotation, ext.translation_m, ext.time_offset_s + offset)
-    return hyps, replace(selection, extrinsics=shifted_ext)
+    return None if best is None else best[1:]
 
 
 #: How far the final fit's clock offset may lie from the shift stage 6 needed [s] for
@@ -281,7 +325,7 @@ def _shift_note(shift_s: float, fitted_s: float | None) -> str | None:
     if shift_s == 0.0:
         return None
     if fitted_s is None or abs(fitted_s - shift_s) <= _SHIFT_CONFIRMED_S:
-        _LOG.warning('the hypotheses agree only with the radar stamps shifted by %+.2f s: a '
+        _LOG.warning('the hypotheses agree best with the radar stamps shifted by %+.2f s: a '
                      'clock offset between radar and vehicle (sync.time_offset)%s', shift_s,
                      '' if fitted_s is None else f'; the final fit puts it at {fitted_s:+.3f} s')
         return None
@@ -503,6 +547,9 @@ def _data_notes(recording: Recording, corrections: list[str],
     speed), a radar without elevation, standalone GNSS fixes. ``fitted_offset_s``, the
     final fit's clock offset, tells late fixes from a late Odometry."""
     notes = list(corrections)
+    zone = zone_note(recording.frame)
+    if zone is not None:
+        notes.append(zone)
     turns = recording.counters.get('mount_turns', 0)
     if turns:
         words = hypotheses.turn_words(recording.counters.get('mount_turn_cdeg', 0) / 100,

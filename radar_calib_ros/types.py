@@ -263,7 +263,9 @@ class HypothesisSelection:
     of one pass merged); rivals: (horizontal distance [m], passes) of every other agreeing
     group seen in nearly as many passes that places the radar elsewhere
     (``hypotheses.prune_hypotheses``); mount_turn: where the tracks show the mount turned
-    during the recording (``hypotheses.mount_turn``), else None.
+    during the recording (``hypotheses.mount_turn``), else None; passes_in_view: the
+    vehicle's passes through the view under the accepted calibration
+    (``hypotheses.vehicle_view_passes``), agreeing or not.
     """
 
     hypotheses: tuple[Hypothesis, ...]
@@ -276,6 +278,7 @@ class HypothesisSelection:
     pass_intervals_ns: I64 = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     rivals: tuple[tuple[float, int], ...] = ()
     mount_turn: MountTurn | None = None
+    passes_in_view: int = 0
 
     @property
     def n_passes(self) -> int:

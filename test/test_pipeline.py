@@ -643,3 +643,41 @@ def test_a_mount_re_aimed_mid_drive_is_found_and_the_mount_after_it_calibrated(
     notes = cal['quality']['data_notes']
     assert any('mount turned by 4.' in n and 'anticlockwise' in n for n in notes), notes
     assert result.recording.counters['mount_turn_frames_left_out'] > 1000
+
+
+@pytest.mark.parametrize('shifted_passes, taken', [(6, True), (4, False)])
+def test_one_direction_of_two_agreeing_tries_other_offsets(
+        monkeypatch: pytest.MonkeyPatch, shifted_passes: int, taken: bool) -> None:
+    """Stage 6 agrees as stamped on 3 of the 6 passes in view (a clock offset on a road
+    driven both ways: one direction only): the other offsets are tried, and one on which
+    two more passes agree is taken; one more pass is not enough. Where most passes in view
+    agree, nothing else is tried."""
+    tried: list[float] = []
+
+    def selection(passes: int, in_view: int) -> HypothesisSelection:
+        return dataclasses.replace(_selection(passes),
+                                   pass_intervals_ns=np.zeros((passes, 2), np.int64),
+                                   passes_in_view=in_view)
+
+    def generate(tracks: Any, recording: Any, ground: Any, config: CalibConfig) -> list[Any]:
+        tried.append(round(config.sync.time_offset, 6))
+        return []
+
+    def prune(hyps: Any, tracks: Any, recording: Any, ground: Any,
+              config: CalibConfig) -> HypothesisSelection:
+        offset = round(config.sync.time_offset, 6)
+        return selection({0.0: 3, -0.05: shifted_passes}.get(offset, 2), 6)
+    monkeypatch.setattr(pipeline.hypotheses, 'generate_hypotheses', generate)
+    monkeypatch.setattr(pipeline.hypotheses, 'prune_hypotheses', prune)
+    _, chosen = pipeline._hypotheses((), _NO_LAG, None,  # type: ignore[arg-type]
+                                     _config(time_offset=0.0, max_time_offset=0.25))
+    assert len(tried) == 11
+    assert chosen.n_passes == (6 if taken else 3)
+    assert chosen.extrinsics.time_offset_s == pytest.approx(-0.05 if taken else 0.0)
+
+    tried.clear()
+    monkeypatch.setattr(pipeline.hypotheses, 'prune_hypotheses',
+                        lambda *a: selection(4, 6))
+    pipeline._hypotheses((), _NO_LAG, None,  # type: ignore[arg-type]
+                         _config(time_offset=0.0, max_time_offset=0.25))
+    assert tried == [0.0]

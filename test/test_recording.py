@@ -1560,3 +1560,38 @@ def test_chunks_of_one_scan_under_one_stamp_still_merge() -> None:
     assert 'radar_scans_shared_stamp' not in rec.counters
     assert rec.counters['radar_messages_merged'] == 30
     assert np.bincount(rec.targets.frame_index).tolist() == [1] + [19] * 30
+
+
+def test_a_slow_bend_is_no_straight_stretch_for_the_heading_checks() -> None:
+    """Straight stretches at 10 m/s between slow bends (70 m radius at 3 m/s: 0.04 rad/s,
+    under the straight yaw rate), the reference point 1.5 m ahead of the rear axle, the
+    Odometry exact: on the bends the course leaves the heading by 1.2 deg (atan(1.5 / 70)),
+    which is geometry, not an INS wandering (a seventeenth probe: called wandering and
+    'followed')."""
+    frame = LocalFrame.at(LAT0, LON0)
+    ahead_m, radius_m = 1.5, 70.0
+    fine = np.arange(0.0, 240.0, 0.001)
+    phase = fine % 60.0
+    bend = phase >= 30.0
+    speed = np.where(bend, 3.0, 10.0)
+    yaw_rate = np.where(bend, speed / radius_m, 0.0)
+    yaw = np.cumsum(yaw_rate) * 1e-3
+    rear = np.column_stack([np.cumsum(speed * np.cos(yaw)), np.cumsum(speed * np.sin(yaw))]) * 1e-3
+    ref = rear + ahead_m * np.column_stack([np.cos(yaw), np.sin(yaw)])
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    t_fix = np.arange(0.0, 240.0, 0.05)
+    i_fix = np.round(t_fix * 1000).astype(int)
+    local = np.column_stack([ref[i_fix], np.zeros(t_fix.size)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    for i, ti in enumerate(t_fix):
+        builder.add_fix(FixSample(T0 + int(round(ti * 1e9)), lat[i], lon[i], alt[i], 2,
+                                  (0.02, 0.03)))
+    conv = float(frame.local_convergence_rad(np.array([LAT0]), np.array([LON0]))[0])
+    for ti in np.arange(0.0, 240.0, 0.02):
+        k = int(round(ti * 1000))
+        builder.add_odometry(_odom(T0 + int(round(ti * 1e9)), yaw[k] + conv, speed[k],
+                                   yaw_rate[k]))
+    rec = builder.build()
+    assert 'odometry_heading_wander_cdeg' not in rec.counters
+    assert abs(rec.counters.get('odometry_heading_offset_cdeg', 0)) < 10

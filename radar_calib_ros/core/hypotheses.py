@@ -447,6 +447,8 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
                           and d > _RIVAL_EPS_FACTOR * cfg.eps_m))
     accepted_ids = tuple(int(hyps[i].track_id) for i in accepted.core)
     turn = mount_turn(accepted, hyps, hyp_tracks, variants, recording, config)
+    in_view, _ = vehicle_view_passes([hyp_tracks[i] for i in accepted.core], accepted.fit,
+                                     tracks, recording, config)
     extrinsics = Extrinsics(accepted.fit.rotation @ ground.rotation_level,
                             accepted.fit.translation_m, 0.0)
     _LOG.debug('accepted cluster %d: %d of %d tracks, %d passes, mean angle %.3f deg, '
@@ -454,7 +456,7 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
                accepted.n_passes, accepted.mean_angle_deg, accepted.fit.rms_m)
     return HypothesisSelection(tuple(hyps), labels, accepted.label, mean_angles, accepted_ids,
                                extrinsics, accepted.n_correspondences, accepted.passes, rivals,
-                               turn)
+                               turn, in_view)
 
 
 #: The least turn of the mount [deg] that :func:`mount_turn` names, and how many standard

@@ -38,6 +38,27 @@ def utm_epsg(lat_deg: float, lon_deg: float) -> int:
     return (32600 if lat_deg >= 0.0 else 32700) + zone
 
 
+def zone_note(frame: LocalFrame) -> str | None:
+    """A sentence where ``world.epsg`` names a UTM zone of the other hemisphere than the
+    site's: the coordinates are right in it, but a northern zone gives a southern site
+    negative northings (and a southern one a northern site 10 000 km of false northing),
+    most likely a slip in the parameters file (a seventeenth probe's EPSG:32656 at 33.9 S:
+    northing -3 755 140 m, not a word). None otherwise (a neighbouring zone is common use)."""
+    zone = pyproj.CRS.from_epsg(frame.epsg).utm_zone
+    if zone is None or not (-80.0 <= frame.lat0_deg <= 84.0):
+        return None
+    south_zone, south_site = zone.upper().endswith('S'), frame.lat0_deg < 0.0
+    if south_zone == south_site:
+        return None
+    own = utm_epsg(frame.lat0_deg, frame.lon0_deg)
+    hemisphere = 'southern' if south_zone else 'northern'
+    return (f'world.epsg {frame.epsg} is a UTM zone of the {hemisphere} hemisphere ({zone}), '
+            f'but the site lies at {abs(frame.lat0_deg):.1f} '
+            f'{"S" if south_site else "N"}: its northings are '
+            f'{"negative" if south_site else "offset by the southern false northing"}. The '
+            f'result is right in that grid; the site\'s own zone is EPSG:{own}.')
+
+
 @dataclass(frozen=True)
 class LocalFrame:
     """Metric site frame: x east, y north (of the local grid), z = ellipsoidal altitude.

@@ -143,3 +143,17 @@ def test_rotation_local_to_utm_maps_directions(lat: float, lon: float) -> None:
 def test_unknown_epsg_is_a_config_error() -> None:
     with pytest.raises(ConfigError, match='world.epsg 1 is not a known EPSG'):
         LocalFrame(48.0, 11.0, 1)
+
+
+def test_a_zone_of_the_other_hemisphere_is_noted() -> None:
+    """A northern zone for a southern site (negative northings) and the other way round
+    are named with the site's own zone; the site's zone, a neighbour and ETRS89 are not."""
+    from radar_calib_ros.io.geo import zone_note
+    north = zone_note(LocalFrame.at(-33.9, 151.2, 32656))
+    assert north is not None and 'northern hemisphere (56N)' in north
+    assert '33.9 S' in north and 'negative' in north and 'EPSG:32756' in north
+    south = zone_note(LocalFrame.at(48.1, 9.0, 32732))
+    assert south is not None and 'southern hemisphere' in south and 'EPSG:32632' in south
+    for lat, lon, epsg in ((-33.9, 151.2, 32756), (-33.9, 151.2, 32755), (48.1, 9.0, 32633),
+                           (48.1, 9.0, 25832)):
+        assert zone_note(LocalFrame.at(lat, lon, epsg)) is None
