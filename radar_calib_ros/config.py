@@ -221,6 +221,11 @@ class RefineConfig:
         0.1, "systematic 1-sigma of the difference between the vehicle's reflection heights "
         'seen from the front and from the rear; its effect on the fit (mostly roll and pitch) '
         'is added to the reported uncertainty [m]', lo=0.0, hi=5.0)
+    model_sigma_height_range_m: float = _p(
+        0.2, "systematic 1-sigma of the change of the vehicle's mean reflection height with "
+        'range, from the median range to twice it; its effect on the fit (mostly pitch, and '
+        'roll where range follows azimuth) is added to the reported uncertainty [m]',
+        lo=0.0, hi=5.0)
     azimuth_scale_sigma: float = _p(
         0.0, "prior 1-sigma of a scale error of the radar's own azimuths (1 % = 0.45 deg at "
         '45 deg), fitted with the calibration when above 0 (for a radar whose angle '

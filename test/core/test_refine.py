@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from refine_scene import Scene, errors, make_scene
 
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.core import refine, reflection, uncertainty
+from radar_calib_ros.core import refine, reflection, registration, uncertainty
 from radar_calib_ros.core.vehicle import box_corners_world
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.types import Extrinsics, Targets, TrackedTargets
@@ -1138,3 +1138,35 @@ def test_a_radar_turned_between_passes_is_placed_in_time_by_the_final_fit(
     assert found.gap_ns[0] < found.at_ns <= stamps[later].min()
     plain = _run(scene).diagnostics.get('mount_turn')
     assert plain is None or abs(plain.yaw_change_deg) < 0.5
+
+
+def test_a_reflection_height_changing_with_range_enters_the_reported_tilt() -> None:
+    """The vehicle's targets 0.2 m higher at twice the median range than at it (and lower
+    nearer) tilt the fit, which cannot tell them from a pitch; the consider term of
+    refine.model_sigma_height_range_m widens the rotation sigma by about that tilt."""
+    scene = make_scene(5, model='interior', geometry='diverse')
+
+    def fit(recording: Any, sigma_m: float) -> Any:
+        config = dataclasses.replace(scene.config, refine=dataclasses.replace(
+            scene.config.refine, model_sigma_height_range_m=sigma_m))
+        return refine.refine_extrinsics(scene.initial, recording, scene.tracked,
+                                        scene.selection, config)
+
+    def sigma_deg(ref: Any) -> float:
+        return math.degrees(math.sqrt(np.trace(ref.covariance[:3, :3])))
+
+    plain, considered = fit(scene.recording, 0.0), fit(scene.recording, 0.2)
+    rec, idx = scene.recording, scene.vehicle_target_index
+    world = scene.truth.apply(rec.targets.positions_m[idx])
+    reach = np.hypot(*(world[:, :2] - scene.truth.translation_m[:2]).T)
+    world[:, 2] += 0.2 * (reach / np.median(reach) - 1.0)
+    moved = rec.targets.positions_m.copy()
+    moved[idx] = scene.truth.inverse_apply(world)
+    raised = fit(dataclasses.replace(rec, targets=dataclasses.replace(
+        rec.targets, positions_m=moved)), 0.0)
+    tilt = float(registration.rotation_angle_deg(plain.extrinsics.rotation,
+                                                 raised.extrinsics.rotation))
+    widened = math.sqrt(sigma_deg(considered) ** 2 - sigma_deg(plain) ** 2)
+    assert tilt > 0.1 and 0.5 * tilt < widened < 3.0 * tilt, (tilt, widened)
+    np.testing.assert_allclose(considered.extrinsics.translation_m,
+                               plain.extrinsics.translation_m)
