@@ -265,7 +265,9 @@ class HypothesisSelection:
     (``hypotheses.prune_hypotheses``); mount_turn: where the tracks show the mount turned
     during the recording (``hypotheses.mount_turn``), else None; passes_in_view: the
     vehicle's passes through the view under the accepted calibration
-    (``hypotheses.vehicle_view_passes``), agreeing or not.
+    (``hypotheses.vehicle_view_passes``), agreeing or not; passes_as_stamped: where the
+    radar stamps were shifted because more passes agree so (``pipeline._hypotheses``), how
+    many agreed as stamped, else -1.
     """
 
     hypotheses: tuple[Hypothesis, ...]
@@ -279,6 +281,7 @@ class HypothesisSelection:
     rivals: tuple[tuple[float, int], ...] = ()
     mount_turn: MountTurn | None = None
     passes_in_view: int = 0
+    passes_as_stamped: int = -1
 
     @property
     def n_passes(self) -> int:

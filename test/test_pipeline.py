@@ -674,6 +674,7 @@ def test_one_direction_of_two_agreeing_tries_other_offsets(
     assert len(tried) == 11
     assert chosen.n_passes == (6 if taken else 3)
     assert chosen.extrinsics.time_offset_s == pytest.approx(-0.05 if taken else 0.0)
+    assert chosen.passes_as_stamped == (3 if taken else -1)
 
     tried.clear()
     monkeypatch.setattr(pipeline.hypotheses, 'prune_hypotheses',
