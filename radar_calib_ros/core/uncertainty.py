@@ -391,8 +391,10 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     useful = [c for c in candidates if c.gain > 0.0][:2]
     for cand in useful:
         side = 'left' if cand.bearing_rad > 0 else 'right'
+        # a road driven one way may be one carriageway of a divided road (a seventeenth
+        # probe's motorway gantry was asked to drive against the traffic)
         what = ('again on a lane already driven' if cand.driven
-                else 'on a road already driven, in the other direction,')
+                else 'on a road already driven the other way (where its lanes allow)')
         sentences.append(
             f'Drive {compass_name(cand.heading_rad)}bound {what} through the view about '
             f'{cand.range_m:.0f} m from the radar and {abs(math.degrees(cand.bearing_rad)):.0f} '
