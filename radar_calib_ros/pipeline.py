@@ -560,8 +560,8 @@ def _data_notes(recording: Recording, corrections: list[str],
             f'The radar\'s mount turned {words}{more} about '
             f'{recording.counters.get("mount_turn_at_s", 0)} s into the recording: the '
             f'{recording.counters.get("mount_turn_passes_before", 0)} vehicle passes before it '
-            'agree with each other, not with those after (the radar in the same place). The '
-            'calibration is of the mount after the turn, from the data after it '
+            'agree with each other, not with those after. The calibration is of the mount '
+            'after the turn, from the data after it '
             f'({recording.counters.get("mount_turn_frames_left_out", 0)} radar frames before '
             'it left out). Re-aimed on purpose? Then this is the one to use; if not, check '
             'the bracket.')
@@ -882,10 +882,11 @@ def _calibration_of_current_mount(recording: Recording, config: CalibConfig,
 
     Why: a mount turned during the recording (re-aimed, a bracket that slipped) gives two
     calibrations, and averaging them is neither (a thirteenth probe's +3 deg mid-drive: yaw
-    between the two, 1.5 m off). Where stage 6 finds the turn (``hypotheses.mount_turn``),
-    the data before it are left out and the calibration starts again: the mount as it is
-    now is the one a user calibrates for. Too few passes after the turn is a failure that
-    says so, not a calibration of a mount that no longer exists.
+    between the two, 1.5 m off). Where stage 6 (``hypotheses.mount_turn``) or the final
+    fit (``refine``, where the drives' halves disagree) finds the turn, the data before it
+    are left out and the calibration starts again: the mount as it is now is the one a
+    user calibrates for. Too few passes after the turn is a failure that says so, not a
+    calibration of a mount that no longer exists.
     """
     turns: list[str] = []
     while True:
@@ -896,6 +897,11 @@ def _calibration_of_current_mount(recording: Recording, config: CalibConfig,
             # in words before the cut, while its time counts from the recording's start
             turns.append(hypotheses.mount_turn_text(turn, recording))
             _LOG.warning('%s Calibrating the data after it.', turns[-1])
+            if turn.at_ns <= int(recording.frame_stamps_ns[0]):
+                # nothing to leave out (cannot happen between two groups of passes; a
+                # guard against calibrating the same data again and again)
+                raise InsufficientDataError('hypotheses', f'{turns[-1]} No data before it '
+                                            'to leave out.')
             recording = _frames_from(recording, turn.at_ns)
             recording.counters.update(
                 mount_turns=len(turns), mount_turn_cdeg=int(round(turn.yaw_change_deg * 100)),
@@ -985,8 +991,9 @@ def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibC
 
 
 class _MountTurned(Exception):
-    """Stage 6 found the radar's mount turned during the recording (``MountTurn``): the
-    calibration starts again on the data after the turn (``_calibration_of_current_mount``)."""
+    """Stage 6 or the final fit found the radar's mount turned during the recording
+    (``MountTurn``): the calibration starts again on the data after the turn
+    (``_calibration_of_current_mount``)."""
 
     def __init__(self, turn: MountTurn) -> None:
         super().__init__('the mount turned '

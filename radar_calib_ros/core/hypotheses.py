@@ -621,7 +621,7 @@ def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],
 
 def turn_words(yaw_deg: float, tilt_deg: float) -> str:
     """'by 3.0 deg in yaw (anticlockwise seen from above)[ and 1.0 deg in pitch and roll]'
-    (either part alone where the other is under a tenth of a degree)."""
+    (either part alone where the other rounds to 0.0)."""
     parts = []
     if abs(yaw_deg) >= 0.05 or tilt_deg < 0.05:
         where = 'anticlockwise' if yaw_deg > 0 else 'clockwise'
@@ -637,8 +637,8 @@ def mount_turn_text(turn: MountTurn, recording: Recording) -> str:
     return (f'The radar\'s mount turned {turn_words(turn.yaw_change_deg, turn.tilt_change_deg)}'
             f' about {at_s:.0f} s into the recording: {turn.passes_before} '
             f'vehicle pass{"es" if turn.passes_before != 1 else ""} before it and '
-            f'{turn.passes_after} after it agree within their side, not across, with the '
-            'radar in one place (re-aimed, or a bracket that slipped?).')
+            f'{turn.passes_after} after it agree within their side, not across (re-aimed, '
+            'or a bracket that slipped?).')
 
 
 def _track_rms(rotation: F64, translation_m: F64, source: F64, target: F64, owner: I64,

@@ -1813,16 +1813,8 @@ def _height_difference_shift(model: _Model, x: F64, jacobian: F64, sqrt_w: F64,
     The linearisation gives the direction of the tilt but, on a synthetic head-on scene,
     about a quarter of its size (the gate and weights of the later rounds follow the data).
     """
-    g = model.geometry(x)
-    d = model.data
-    dz = np.zeros((d.index.size, 3))
-    dz[:, 2] = -np.cos(g['aspect'])
-    dr = np.concatenate([(np.einsum('nij,nj->ni', d.whiten, dz) * d.sqrt_weight[:, None]).ravel(),
-                         np.zeros(d.index.size)]) * sqrt_w
-    jw = jacobian * sqrt_w[:, None]
-    h = jw.T @ jw + j_prior.T @ j_prior
-    shift: F64 = -np.linalg.solve(h, jw.T @ dr)
-    return shift
+    return _height_shift(model, x, jacobian, sqrt_w, j_prior,
+                         np.cos(model.geometry(x)['aspect']))
 
 
 def _height_shift(model: _Model, x: F64, jacobian: F64, sqrt_w: F64, j_prior: F64,
