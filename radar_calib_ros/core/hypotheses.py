@@ -425,10 +425,8 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     per_track = [reflection_variants(c, config)
                  for c in track_correspondences(hyp_tracks, recording, config)]
     variants = [{v[i].track_id: v[i] for v in per_track} for i in range(len(per_track[0]))]
-    clusters = [min((_cluster_core(int(label), np.flatnonzero(labels == label), hyps,
-                                   hyp_tracks, corrs, recording, config)
-                     for corrs in variants),
-                    key=lambda c: (c.fit is None, -c.n_passes, _rms(c)))
+    clusters = [_best_core(int(label), np.flatnonzero(labels == label), hyps, hyp_tracks,
+                           variants, recording, config)
                 for label in np.unique(labels[labels >= 0])]
     mean_angles = {c.label: c.member_angle_deg for c in clusters}
     eligible = [c for c in clusters if c.fit is not None and c.n_passes >= cfg.min_passes
@@ -495,9 +493,7 @@ def mount_turn(accepted: _Cluster, hyps: Sequence[Hypothesis],
     rest = np.setdiff1d(accepted.members, accepted.core)
     if rest.size < 2 or accepted.fit is None:
         return None
-    other = min((_cluster_core(accepted.label, rest, hyps, hyp_tracks, corrs, recording,
-                               config) for corrs in variants),
-                key=lambda c: (c.fit is None, -c.n_passes, _rms(c)))
+    other = _best_core(accepted.label, rest, hyps, hyp_tracks, variants, recording, config)
     # Both sides in as many passes as a calibration needs: two passes of tracks that fit
     # the vehicle badly the same way (short tracks late in a drive, a turning movement) make
     # a group 5 deg off without any turn (one in 73 simulated drives at two)
@@ -523,9 +519,7 @@ def mount_turn(accepted: _Cluster, hyps: Sequence[Hypothesis],
     if split_scores[best] < _MOUNT_TURN_AGREEMENT * union.size or best + 1 >= union.size:
         return None
     split_ns = int(starts[order][best + 1])
-    sides = [min((_cluster_core(accepted.label, side, hyps, hyp_tracks, corrs, recording,
-                                config) for corrs in variants),
-                 key=lambda c: (c.fit is None, -c.n_passes, _rms(c)))
+    sides = [_best_core(accepted.label, side, hyps, hyp_tracks, variants, recording, config)
              for side in (union[starts < split_ns], union[starts >= split_ns])]
     before, after = sides
     if (before.fit is None or after.fit is None
@@ -563,6 +557,17 @@ def turn_moment_ns(vehicle: VehicleTrack, sensor_xy_m: F64, reach_m: float,
             - pose_stamps_ns(np.zeros(1, np.int64), time_offset_s)[0])
     away = away[(away > gap_ns[0]) & (away < gap_ns[1])]
     return int(away[-1]) if away.size else (gap_ns[0] + gap_ns[1]) // 2
+
+
+def _best_core(label: int, members: I64, hyps: Sequence[Hypothesis],
+               hyp_tracks: Sequence[SmoothedTrack],
+               variants: Sequence[dict[int, Correspondences]], recording: Recording,
+               config: CalibConfig) -> _Cluster:
+    """The core of a group of hypotheses under the reflection variant (see
+    ``reflection_variants``) that fits, then keeps more passes, then fits better."""
+    return min((_cluster_core(label, members, hyps, hyp_tracks, corrs, recording, config)
+                for corrs in variants),
+               key=lambda c: (c.fit is None, -c.n_passes, _rms(c)))
 
 
 def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],

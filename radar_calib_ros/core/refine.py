@@ -1725,8 +1725,7 @@ def _halves_disagreement(shift: F64 | None, cov7: F64) -> tuple[float, float] | 
     if shift is None:
         return None
     d_rot = shift[:3]
-    chi2 = float(d_rot @ np.linalg.solve(4.0 * cov7[:3, :3], d_rot))
-    if chi2 <= _HALVES_CHI2:
+    if _rotation_chi2(d_rot, cov7, 4.0) <= _HALVES_CHI2:
         return None
     return float(np.degrees(np.linalg.norm(d_rot))), float(np.linalg.norm(shift[3:6]))
 
@@ -1736,11 +1735,24 @@ def _halves_shift(passes: uncertainty.PassCovariance, prior_hessian: F64) -> F64
     time order) minus that from the second half, None with fewer than four passes."""
     if passes.n_passes < 4:
         return None
-    half = (np.arange(passes.n_passes) >= passes.n_passes // 2).astype(np.int64)
-    influences = uncertainty.group_influences(passes, half, prior_hessian)
-    # influences[g]: the step that leaving half g out takes, i.e. towards the other half
-    shift: F64 = influences[1] - influences[0]
+    shift: F64 = -_split_step(passes, prior_hessian, passes.n_passes // 2)
     return shift
+
+
+def _split_step(passes: uncertainty.PassCovariance, prior_hessian: F64, k: int) -> F64:
+    """(p,) one-step estimate from the passes from ``k`` on (in time) minus that from the
+    passes before it."""
+    later = (np.arange(passes.n_passes) >= k).astype(np.int64)
+    influences = uncertainty.group_influences(passes, later, prior_hessian)
+    # influences[g]: the step that leaving group g out takes, i.e. towards the other group
+    step: F64 = influences[0] - influences[1]
+    return step
+
+
+def _rotation_chi2(rotation_step: F64, cov7: F64, scale: float) -> float:
+    """Chi-square of a rotation difference (3,) [rad] against ``scale`` times the rotation
+    block of ``cov7``."""
+    return float(rotation_step @ np.linalg.solve(scale * cov7[:3, :3], rotation_step))
 
 
 def _turn_between_passes(passes: uncertainty.PassCovariance, prior_hessian: F64, cov7: F64,
@@ -1760,14 +1772,10 @@ def _turn_between_passes(passes: uncertainty.PassCovariance, prior_hessian: F64,
     n, least = passes.n_passes, config.hypotheses.min_passes
     best: tuple[float, int, F64] | None = None
     for k in range(least, n - least + 1):
-        influences = uncertainty.group_influences(
-            passes, (np.arange(n) >= k).astype(np.int64), prior_hessian)
-        # the later side's estimate minus the earlier's (leaving a side out steps towards
-        # the other); the difference of two part-estimates has G/k + G/(G-k) times the
-        # variance of the whole
-        step = influences[0] - influences[1]
-        chi2 = float(step[:3] @ np.linalg.solve((n / k + n / (n - k)) * cov7[:3, :3],
-                                                step[:3]))
+        step = _split_step(passes, prior_hessian, k)
+        # the difference of two part-estimates has G/k + G/(G-k) times the variance of
+        # the whole
+        chi2 = _rotation_chi2(step[:3], cov7, n / k + n / (n - k))
         if chi2 > _HALVES_CHI2 and (best is None or chi2 > best[0]):
             best = (chi2, k, step)
     if best is None:
