@@ -144,7 +144,7 @@ def vehicle_track_ids(recording: Recording, tracked: TrackedTargets, extrinsics:
     index, track_id = tracked.target_index[keep], track_id[keep]
     if index.size == 0:
         return np.zeros(0, np.int64)
-    stamps = recording.target_stamps_ns[index]
+    stamps = recording.stamps_of(index)
     offset_s = config.sync.time_offset + extrinsics.time_offset_s
     poses = interpolate_poses(recording.vehicle, stamps + np.int64(round(offset_s * 1e9)),
                               config.sync.max_pose_gap)
@@ -163,5 +163,5 @@ def recording_metrics(recording: Recording, target_index: I64, extrinsics: Extri
     """:func:`paper_metrics` of the given targets of a recording."""
     target_index = np.asarray(target_index, np.int64)
     return paper_metrics(recording.targets.positions_m[target_index],
-                         recording.target_stamps_ns[target_index], recording.vehicle,
+                         recording.stamps_of(target_index), recording.vehicle,
                          extrinsics, config)

@@ -219,8 +219,9 @@ def test_the_nodes_clock_names_radar_stamps_off_the_poses(tmp_path: Path, store:
 
 def test_buffer_bounded_by_memory(tmp_path: Path, store: Any) -> None:
     live, log = make_live(tmp_path, **{'buffer.max_memory_mb': 16.0})
-    message = radar_msg(store, T0_NS, 2000)
-    for i in range(400):  # 2000 targets x 32 bytes = 64 kB per frame, 25 MB in all
+    message = radar_msg(store, T0_NS, 4000)
+    # 4000 float32 targets (x, y, z, v_r) x 16 bytes = 64 kB per frame, 25 MB in all
+    for i in range(400):
         message.header.stamp.sec = T0_NS // 10**9 + i // 15
         message.header.stamp.nanosec = (i % 15) * 66_666_667
         assert live.on_radar(message)

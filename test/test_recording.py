@@ -9,6 +9,7 @@ import pyproj
 import pytest
 from scipy.spatial.transform import Rotation
 
+from radar_calib_ros import recording
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import ConfigError, InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
@@ -1595,3 +1596,26 @@ def test_a_slow_bend_is_no_straight_stretch_for_the_heading_checks() -> None:
     rec = builder.build()
     assert 'odometry_heading_wander_cdeg' not in rec.counters
     assert abs(rec.counters.get('odometry_heading_offset_cdeg', 0)) < 10
+
+
+def test_buffered_targets_are_float32_where_that_loses_nothing() -> None:
+    """The builder holds a frame of float32 values (as most PointCloud2 fields carry) as
+    float32, half the memory of an imaging radar's millions of targets, and widens them
+    once when it builds; values float32 cannot hold stay exact."""
+    builder, _, _ = circle_builder()
+    single = np.array([[10.5, -3.25, 0.125]] * 4)
+    double = np.array([[10.123456789, -3.5, 0.25]] * 4)
+    held = builder.nbytes()
+    builder.add_radar_frame(RadarFrame(T0 + 10**8, single, np.full(4, 1.5)))
+    # 4 targets of 3 + 1 float32 values, beside the per-frame overhead
+    assert builder.nbytes() - held == 4 * 4 * 4 + recording._FRAME_OVERHEAD_BYTES
+    held = builder.nbytes()
+    builder.add_radar_frame(RadarFrame(T0 + 2 * 10**8, double, np.full(4, 1.5)))
+    assert builder.nbytes() - held == 4 * 3 * 8 + 4 * 4 + recording._FRAME_OVERHEAD_BYTES
+    rec = builder.build()
+    assert rec.targets.positions_m.dtype == np.float64
+    assert rec.targets.radial_velocity_mps.dtype == np.float64
+    np.testing.assert_array_equal(rec.targets.positions_m[rec.targets.frame_index == 1],
+                                  single)
+    np.testing.assert_array_equal(rec.targets.positions_m[rec.targets.frame_index == 2],
+                                  double)

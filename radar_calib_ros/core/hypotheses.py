@@ -397,7 +397,7 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
                    'hypotheses.min_track_frames and associate.min_track_frames set the least'
                    if frames.size and short > frames.size // 2 else '')
         if not lengths and len(recording.targets):
-            xy = recording.targets.positions_m[:, :2]
+            xy = recording.view_sample_m()[:, :2]
             lo, hi = np.degrees(np.percentile(np.arctan2(xy[:, 1], xy[:, 0]), [1, 99]))
             if hi - lo < _NARROW_VIEW_DEG:
                 lengths = (f'; the radar\'s targets span only {lo:+.0f} to {hi:+.0f} deg of '

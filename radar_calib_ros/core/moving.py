@@ -25,6 +25,8 @@ from radar_calib_ros.types import F64
 #: Half-width of the window around zero in which the stationary peak is measured [m/s]:
 #: wide against any radar's Doppler noise, narrow against road users' speeds.
 _PEAK_WINDOW_MPS = 1.0
+#: Most targets the stationary peak is measured on (an even sample of a larger recording).
+_PEAK_SAMPLE = 4_000_000
 #: Fewest targets in that window for the estimate to mean anything.
 _MIN_PEAK_TARGETS = 200
 
@@ -38,7 +40,10 @@ def stationary_velocity_sigma(radial_velocity_mps: F64) -> float:
     v_r (crossing traffic) widen it slightly, which errs on the side of a higher threshold.
     Returns 0.0 when too few targets lie near zero to tell.
     """
-    v = np.abs(np.asarray(radial_velocity_mps, dtype=np.float64))
+    v = np.asarray(radial_velocity_mps, dtype=np.float64)
+    # an evenly strided sample: the median of millions is as sure as of all 48 million of an
+    # imaging radar's eight minutes, whose full copies here took 1.5 GB (an eighteenth probe)
+    v = np.abs(v[::max(1, v.size // _PEAK_SAMPLE)])
     near = v[v < _PEAK_WINDOW_MPS]  # NaN compares False: excluded
     if near.size < _MIN_PEAK_TARGETS:
         return 0.0

@@ -74,7 +74,7 @@ def vehicle_targets(extrinsics: Extrinsics, recording: Recording, tracked: Track
     """The targets of the given tracks with a valid pose, placed in the world."""
     mask = np.isin(tracked.track_id, np.asarray(track_ids, np.int64))
     index = tracked.target_index[mask]
-    stamps = recording.target_stamps_ns[index]
+    stamps = recording.stamps_of(index)
     offset_s = config.sync.time_offset + extrinsics.time_offset_s
     poses = interpolate_poses(recording.vehicle, stamps + np.int64(round(offset_s * 1e9)),
                               config.sync.max_pose_gap)

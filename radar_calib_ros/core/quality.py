@@ -280,7 +280,7 @@ def _pass_intervals(tracked: TrackedTargets, recording: Recording,
     if index.size == 0:
         return np.zeros((0, 2), np.int64)
     ids = tracked.track_id[np.isin(tracked.track_id, selection.accepted_track_ids)]
-    stamps = recording.target_stamps_ns[index]
+    stamps = recording.stamps_of(index)
     uid, inverse = np.unique(ids, return_inverse=True)
     lo = np.full(uid.size, np.iinfo(np.int64).max, np.int64)
     hi = np.full(uid.size, np.iinfo(np.int64).min, np.int64)
@@ -365,7 +365,7 @@ def _misfit_not_the_vehicles(extrinsics: Extrinsics, recording: Recording, index
     the targets that do move with it as well."""
     index = np.asarray(index, np.int64)
     targets = recording.targets
-    stamps = recording.target_stamps_ns[index]
+    stamps = recording.stamps_of(index)
     poses = interpolate_poses(recording.vehicle, hypotheses.pose_stamps_ns(
         stamps, config.sync.time_offset + extrinsics.time_offset_s), config.sync.max_pose_gap)
     predicted = _rigid_radial_velocity(extrinsics.apply(targets.positions_m[index]),
@@ -440,7 +440,7 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
         passes = passes[passes[:, 1] >= start]
     if passes.shape[0] == 0:
         return []
-    fitted = np.sort(hypotheses.pose_stamps_ns(recording.target_stamps_ns[fitted_index],
+    fitted = np.sort(hypotheses.pose_stamps_ns(recording.stamps_of(fitted_index),
                                                offset_s))
     n_fitted = (np.searchsorted(fitted, passes[:, 1], side='right')
                 - np.searchsorted(fitted, passes[:, 0], side='left'))
@@ -554,13 +554,13 @@ def vehicle_detection_ratio(extrinsics: Extrinsics, recording: Recording,
     return float(seen[checked].mean()), int(checked.sum())
 
 
-def _frames_seen(view: tuple[np.ndarray, I64, np.ndarray, F64, F64], n_frames: int
+def _frames_seen(view: tuple[np.ndarray, I64, I64, F64, F64], n_frames: int
                  ) -> np.ndarray:
     """(n_frames,) True for the frames of ``_vehicle_in_view``'s targets that show the
     vehicle: a target near its box with its predicted radial velocity."""
-    _, frames, near, measured_vr, predicted_vr = view
+    _, _, frames, measured_vr, predicted_vr = view
     seen = np.zeros(n_frames, bool)
-    seen[frames[near & (np.abs(measured_vr - predicted_vr) < _CHECK_VR_TOLERANCE_MPS)]] = True
+    seen[frames[np.abs(measured_vr - predicted_vr) < _CHECK_VR_TOLERANCE_MPS]] = True
     return seen
 
 
@@ -598,11 +598,11 @@ def radial_velocity_convention(extrinsics: Extrinsics, recording: Recording,
     view = _vehicle_in_view(extrinsics, recording, config)
     if view is None:
         return 1.0, 0, 0
-    _, _, near, measured_vr, predicted_vr = view
+    _, _, _, measured_vr, predicted_vr = view
 
     def matching(factor: float) -> int:
-        return int(np.sum(near & (np.abs(measured_vr - factor * predicted_vr)
-                                  < _CHECK_VR_TOLERANCE_MPS * abs(factor))))
+        return int(np.sum(np.abs(measured_vr - factor * predicted_vr)
+                          < _CHECK_VR_TOLERANCE_MPS * abs(factor)))
 
     same = matching(1.0)
     counts = {factor: matching(factor) for factor in _VR_FACTORS}
@@ -615,19 +615,23 @@ def radial_velocity_convention(extrinsics: Extrinsics, recording: Recording,
 def _radar_view(recording: Recording) -> tuple[float, float, float]:
     """The radar's view from the data: the 99th percentile of all targets' horizontal range
     and the 1st and 99th of their azimuth [m, rad, rad] (the contract has no field-of-view
-    parameter)."""
-    xy = recording.targets.positions_m[:, :2]
+    parameter), from an even sample of them."""
+    xy = recording.view_sample_m()[:, :2]
     az_lo, az_hi = np.percentile(np.arctan2(xy[:, 1], xy[:, 0]), [1, 99])
     return float(np.percentile(np.hypot(xy[:, 0], xy[:, 1]), 99)), float(az_lo), float(az_hi)
 
 
+#: Targets placed in the world at a time when looking for those near the vehicle's box.
+_CHUNK_TARGETS = 2_000_000
+
+
 def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
                      radar_view: tuple[float, float, float] | None = None
-                     ) -> tuple[np.ndarray, I64, np.ndarray, F64, F64] | None:
-    """Frames where the calibration puts the moving vehicle in the radar's view, and their
-    targets: (checked frames mask, each target's frame, near the box, measured and
-    predicted radial velocity); None when no frame qualifies. ``radar_view`` is
-    :func:`_radar_view`'s, computed here when not given."""
+                     ) -> tuple[np.ndarray, I64, I64, F64, F64] | None:
+    """Frames where the calibration puts the moving vehicle in the radar's view, and the
+    targets of those frames near its box (within ``refine.gate_m``): (checked frames mask,
+    the targets' index and frame, measured and predicted radial velocity); None when no frame
+    qualifies. ``radar_view`` is :func:`_radar_view`'s, computed here when not given."""
     targets = recording.targets
     if len(targets) == 0:
         return None
@@ -648,13 +652,22 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
     if not checked.any():
         return None
     candidates = np.flatnonzero(checked[targets.frame_index])
-    frames = targets.frame_index[candidates]
-    world = extrinsics.apply(targets.positions_m[candidates])
-    near = box_distance(world_to_vehicle(world, poses.positions_m[frames],
-                                         poses.yaw_rad[frames]),
-                        config.vehicle) <= config.refine.gate_m
+    # Every caller looks only at the targets near the box: they are picked a few million at
+    # a time, as the placed copies of all targets in those frames of an imaging radar (an
+    # eighteenth probe's 6,500 a frame) took a gigabyte at once.
+    picked = []
+    for chunk in np.array_split(candidates, max(1, candidates.size // _CHUNK_TARGETS)):
+        frames = targets.frame_index[chunk]
+        world = extrinsics.apply(targets.positions_m[chunk])
+        near = box_distance(world_to_vehicle(world, poses.positions_m[frames],
+                                             poses.yaw_rad[frames]),
+                            config.vehicle) <= config.refine.gate_m
+        picked.append(chunk[near])
+    index = np.concatenate(picked)
+    frames = targets.frame_index[index]
+    world = extrinsics.apply(targets.positions_m[index])
     predicted_vr = _rigid_radial_velocity(world, extrinsics, poses.velocities_mps[frames])
-    return checked, frames, near, targets.radial_velocity_mps[candidates], predicted_vr
+    return checked, index, frames, targets.radial_velocity_mps[index], predicted_vr
 
 
 def _rigid_radial_velocity(world: F64, extrinsics: Extrinsics, velocities: F64) -> F64:

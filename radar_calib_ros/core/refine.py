@@ -1781,7 +1781,7 @@ def _turn_between_passes(passes: uncertainty.PassCovariance, prior_hessian: F64,
     if best is None:
         return None
     _, k, step = best
-    stamps = recording.target_stamps_ns[data.index]
+    stamps = recording.stamps_of(data.index)
     gap = (int(stamps[data.pass_id == k - 1].max()), int(stamps[data.pass_id == k].min()))
     local = recording.targets.positions_m[data.index]
     reach = float(np.hypot(local[:, 0], local[:, 1]).max()) + config.hypotheses.pass_margin_m
@@ -2000,17 +2000,10 @@ def _debiased_positions(sensor: F64, config: CalibConfig) -> F64:
     return sensor * scale
 
 
-def _view_sample(recording: Recording) -> F64:
-    """Up to about 200 000 of the targets' sensor-frame positions, evenly strided: enough
-    for the percentiles that outline the radar's view."""
-    sample: F64 = recording.targets.positions_m[::max(1, len(recording.targets) // 200000)]
-    return sample
-
-
 def _range_azimuth_view(recording: Recording) -> tuple[float, float, float]:
     """The radar's view from the data: the 99th percentile of the targets' range and the
     1st and 99th of their azimuth [m, rad, rad]."""
-    pts = _view_sample(recording)
+    pts = recording.view_sample_m()
     az_lo, az_hi = np.percentile(np.arctan2(pts[:, 1], pts[:, 0]), [1.0, 99.0])
     return float(np.percentile(np.linalg.norm(pts, axis=1), 99.0)), float(az_lo), float(az_hi)
 
@@ -2018,7 +2011,7 @@ def _range_azimuth_view(recording: Recording) -> tuple[float, float, float]:
 def _elevation_view(recording: Recording) -> tuple[float, float]:
     """The radar's elevation field of view, from the data: the 1st and 99th percentiles of
     the sensor-frame elevation of all targets [rad] (the edges blurred by the noise)."""
-    pts = _view_sample(recording)
+    pts = recording.view_sample_m()
     el = np.arcsin(np.clip(pts[:, 2] / np.maximum(np.linalg.norm(pts, axis=1), 1e-9), -1, 1))
     lo, hi = np.percentile(el, [1.0, 99.0]) if el.size else (-np.pi / 2, np.pi / 2)
     return float(lo), float(hi)

@@ -605,7 +605,7 @@ def test_frames_with_the_vehicle_cut_by_the_edge_of_the_view_are_left_out() -> N
     az = rng.uniform(-np.radians(45.0), np.radians(45.0), n)
     targets = Targets(np.column_stack([r * np.cos(az), r * np.sin(az), np.full(n, -5.0)]),
                       np.zeros(n), np.zeros(n, np.int64))
-    recording = SimpleNamespace(targets=targets)
+    recording = SimpleNamespace(targets=targets, view_sample_m=lambda: targets.positions_m)
     radar = Extrinsics(np.eye(3), np.zeros(3), 0.0)
     config = CalibConfig()
     a = np.radians(43.0)
