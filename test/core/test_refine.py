@@ -1170,3 +1170,70 @@ def test_a_reflection_height_changing_with_range_enters_the_reported_tilt() -> N
     assert tilt > 0.1 and 0.5 * tilt < widened < 3.0 * tilt, (tilt, widened)
     np.testing.assert_allclose(considered.extrinsics.translation_m,
                                plain.extrinsics.translation_m)
+
+
+# --- one road through the view: the tilt held at the road plane ---------------------------
+
+def test_line_spread_is_the_spread_across_the_road() -> None:
+    from types import SimpleNamespace
+    rng = np.random.default_rng(3)
+    along = rng.uniform(-30.0, 30.0, 4000)
+    across = rng.normal(0.0, 0.6, 4000)
+    heading = np.radians(35.0)
+    world = np.column_stack([along * np.cos(heading) - across * np.sin(heading),
+                             along * np.sin(heading) + across * np.cos(heading),
+                             rng.normal(0.5, 0.3, 4000)]) + [500.0, -200.0, 6.0]
+    data = SimpleNamespace(sqrt_weight=np.ones(4000))
+    assert refine._line_spread(world, data) == pytest.approx(0.6, rel=0.05)  # type: ignore
+    # two roads crossing: no longer one line
+    crossing = np.concatenate([world, world[:, [1, 0, 2]]])
+    data = SimpleNamespace(sqrt_weight=np.ones(8000))
+    assert refine._line_spread(crossing, data) > 10.0  # type: ignore
+
+
+def _fake_refinement(rotation_deg: float, altitude_m: float, moved_deg: float,
+                     spread_m: float) -> Any:
+    from radar_calib_ros.types import Refinement
+    rot = Rotation.from_euler('xyz', [rotation_deg, 0.0, 30.0], degrees=True).as_matrix()
+    return Refinement(Extrinsics(rot, np.array([1.0, 2.0, altitude_m]), 0.0),
+                      np.diag([1e-5] * 3 + [1e-3] * 3 + [1e-6]), 1000, 6,
+                      diagnostics={'tilt_from_plane_deg': moved_deg, 'line_spread_m': spread_m,
+                                   'advice': []})
+
+
+@pytest.mark.parametrize('moved_deg, spread_m, held',
+                         [(2.5, 0.6, True), (2.5, 12.0, False), (0.3, 0.6, False)])
+def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
+        monkeypatch: pytest.MonkeyPatch, moved_deg: float, spread_m: float,
+        held: bool) -> None:
+    """Fitted along one road, a tilt far from the road plane's is refitted held at the
+    plane, and the difference joins the covariance as its 2 sigma; a tilt near the plane,
+    or views spread across the junction, keep the fit."""
+    calls: list[float | None] = []
+
+    def fake(*args: Any, tilt_prior_deg: float | None = None, **kwargs: Any) -> Any:
+        calls.append(tilt_prior_deg)
+        if tilt_prior_deg is None:
+            return _fake_refinement(2.5, 6.8, moved_deg, spread_m)
+        return _fake_refinement(0.0, 6.0, 0.0, spread_m)
+
+    monkeypatch.setattr(refine, '_refine', fake)
+    config = dataclasses.replace(CalibConfig(), refine=dataclasses.replace(
+        CalibConfig().refine, model_check=False))
+    from types import SimpleNamespace
+    recording = SimpleNamespace(has_elevation=True)
+    out = refine._refine_checked(None, recording, None, None, config,  # type: ignore
+                                 np.array([0.0, 0.0, 1.0]), None)
+    if not held:
+        assert calls == [None] and out.extrinsics.translation_m[2] == 6.8
+        return
+    assert calls == [None, refine._HELD_TILT_DEG]
+    assert out.extrinsics.translation_m[2] == 6.0
+    # half the difference is one sigma: 1.25 deg of tilt, 0.4 m of altitude
+    tilt = math.sqrt(out.covariance[0, 0] + out.covariance[1, 1])
+    assert math.degrees(tilt) == pytest.approx(math.hypot(1.25, math.degrees(math.sqrt(2e-5))),
+                                               rel=0.01)
+    assert math.sqrt(out.covariance[5, 5]) == pytest.approx(math.hypot(0.4, 0.0316), rel=0.02)
+    assert out.diagnostics['tilt_held']['moved_deg'] == moved_deg
+    assert out.diagnostics['advice'][0].startswith('The vehicle was seen along one road only')
+    assert out.diagnostics['sigma_vertical_m'] == pytest.approx(math.sqrt(out.covariance[5, 5]))
