@@ -101,7 +101,7 @@ def _cm(row: dict[str, Any], stage: str) -> str:
 def _headings(row: dict[str, Any]) -> str:
     """The passes' directions of travel as compass initials (N, SE, ...), each once."""
     from radar_calib_ros.core.uncertainty import compass_name
-    names = sorted({''.join(w[0].upper() for w in compass_name(math.radians(h)).split('-'))
+    names = sorted({''.join(w[0].upper() for w in compass_name(math.radians(90.0 - h)).split('-'))
                     for h in row.get('headings_deg') or []})
     return ','.join(names) or '-'
 

@@ -318,6 +318,26 @@ def _best_shifted(tracks: tuple[SmoothedTrack, ...], recording: Recording, groun
 _SHIFT_CONFIRMED_S = 0.1
 
 
+def _held_clock_note(held_sigma_s: float, offset_s: float, config: CalibConfig) -> str:
+    """What to say of a clock offset the final fit could not measure and held at stage 6's
+    ``offset_s`` (on top of ``sync.time_offset``)."""
+    # Held at the edge of stage 6's search, the offset is what made the passes agree there,
+    # not a measured one (an eighteenth probe's 12 m bus told a 4.9 m car: held at +0.250 s
+    # with the clocks in step, and the note read as measured)
+    at_limit = (config.sync.max_time_offset > 0
+                and abs(offset_s) >= config.sync.max_time_offset - 0.5 * _CLOCK_STEP_S)
+    return ('The drives did not show the radar\'s clock offset (the vehicle kept its speed '
+            'through the view, where an offset only moves it along its own travel; the first '
+            f'fit left it uncertain by {held_sigma_s:.2f} s): it was held at {offset_s:+.3f} s '
+            'on top of sync.time_offset' + (
+                ', where the paper\'s stages found the passes to agree best, at the limit of '
+                'their search (sync.max_time_offset): an offset there is more often vehicle.* '
+                'not describing the vehicle (its box misplaces each pass along its travel) '
+                'than the clocks. Check vehicle.* first; set ' if at_limit else '. Set ')
+            + 'sync.time_offset if the clocks are known to differ, or drive through the view '
+            'with a stop or a turn to measure it.')
+
+
 def _shift_note(shift_s: float, fitted_s: float | None) -> str | None:
     """What stage 6's need of a clock shift says, once the final fit has its own offset
     (None: not fitted). A shift the fit confirms is the clocks'; one it does not came from
@@ -1139,13 +1159,7 @@ def _run_calibration(recording: Recording, config: CalibConfig,
             raise _MountTurned(turn)
         held = refinement.diagnostics.get('time_offset_held_sigma_s')
         if held is not None:
-            corrections.append(
-                'The drives did not show the radar\'s clock offset (the vehicle kept its '
-                'speed through the view, where an offset only moves it along its own travel; '
-                f'the first fit left it uncertain by {held:.2f} s): it was held at '
-                f'{current.time_offset_s:+.3f} s on top of sync.time_offset. Set '
-                'sync.time_offset if the clocks are known to differ, or drive through the '
-                'view with a stop or a turn to measure it.')
+            corrections.append(_held_clock_note(held, current.time_offset_s, config))
         max_off = config.sync.max_time_offset
         # an offset beyond the bound that a late Odometry explains is named as that
         # (``_data_notes``), not as poses that could not be placed in time

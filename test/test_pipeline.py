@@ -682,3 +682,14 @@ def test_one_direction_of_two_agreeing_tries_other_offsets(
     pipeline._hypotheses((), _NO_LAG, None,  # type: ignore[arg-type]
                          _config(time_offset=0.0, max_time_offset=0.25))
     assert tried == [0.0]
+
+
+def test_a_clock_offset_held_at_the_limit_of_the_search_is_not_taken_for_the_clocks() -> None:
+    """Held where stage 6's search ends, the offset is what made the passes agree (a bus
+    told a car), and the note says to check vehicle.* first; held inside it, it does not."""
+    config = CalibConfig()
+    at_limit = pipeline._held_clock_note(0.15, config.sync.max_time_offset, config)
+    assert 'at the limit of their search (sync.max_time_offset)' in at_limit
+    assert 'Check vehicle.* first' in at_limit and at_limit.endswith('to measure it.')
+    inside = pipeline._held_clock_note(0.15, 0.05, config)
+    assert 'limit' not in inside and 'held at +0.050 s on top of sync.time_offset. Set' in inside

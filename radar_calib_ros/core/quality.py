@@ -297,7 +297,9 @@ def _pass_index(stamps_ns: I64, pass_intervals_ns: I64) -> I64:
 
 
 def _pass_headings_deg(targets: polygon.VehicleTargets, pass_intervals_ns: I64) -> list[float]:
-    """Circular mean heading of the vehicle in each pass [deg, ccw from local east]."""
+    """Circular mean heading of the vehicle in each pass [deg, clockwise from north, as a
+    compass and the result's ``boresight_azimuth_deg``: an eighteenth probe read the
+    anticlockwise-from-east angle it once was as a compass heading]."""
     if pass_intervals_ns.shape[0] == 0 or targets.stamps_ns.size == 0:
         return []
     idx = _pass_index(targets.stamps_ns, pass_intervals_ns)
@@ -305,7 +307,7 @@ def _pass_headings_deg(targets: polygon.VehicleTargets, pass_intervals_ns: I64) 
     c = np.bincount(idx, np.cos(targets.yaw_rad), n)
     s = np.bincount(idx, np.sin(targets.yaw_rad), n)
     seen = np.bincount(idx, minlength=n) > 0
-    return [float(v) for v in np.degrees(np.arctan2(s[seen], c[seen]))]
+    return [float(v) for v in (90.0 - np.degrees(np.arctan2(s[seen], c[seen]))) % 360.0]
 
 
 def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
@@ -324,10 +326,11 @@ def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
         mean = math.atan2(float(np.sin(h).mean()), float(np.cos(h).mean()))
         spread = np.degrees(np.abs((h - mean + np.pi) % (2 * np.pi) - np.pi)).max()
         if spread <= _ONE_DIRECTION_DEG:
-            advice.append(f'All {len(headings_deg)} passes drove in one direction (heading '
-                          f'{math.degrees(mean) % 360:.0f} deg); also drive the opposite '
-                          'direction and other lanes, so the car is seen from its other '
-                          'sides.')
+            bound = uncertainty.compass_name(math.radians(90.0) - mean)
+            advice.append(f'All {len(headings_deg)} passes drove in one direction ({bound}, '
+                          f'heading {math.degrees(mean) % 360:.0f} deg from north); also '
+                          'drive the opposite direction and other lanes, so the car is seen '
+                          'from its other sides.')
     along = sigma['along']
     if bootstrap and math.isfinite(along) and along > config.quality.max_boresight_sigma_m:
         advice.append(f'The position along the boresight is uncertain (1-sigma {along:.2f} '

@@ -9,7 +9,7 @@ from calib_scene import make_scene
 
 from radar_calib_ros import metrics
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.core import hypotheses, quality, registration
+from radar_calib_ros.core import hypotheses, polygon, quality, registration
 from radar_calib_ros.recording import interpolate_poses
 from radar_calib_ros.types import Extrinsics, Refinement
 
@@ -256,3 +256,18 @@ def test_a_box_misfit_from_targets_not_moving_with_the_vehicle_is_not_the_boxs()
     assert found[1] < 0.75 * paper.outlier_distance_m
     trailing = replace(rec, targets=replace(rec.targets, positions_m=positions))
     assert quality._misfit_not_the_vehicles(truth, trailing, index, cfg) is None
+
+
+def test_one_direction_is_named_as_a_compass_heading() -> None:
+    """Pass headings are clockwise from north, as the result's boresight azimuth (an
+    eastbound drive was once named 'heading 355 deg', anticlockwise from east)."""
+    targets = polygon.VehicleTargets(np.arange(4), np.array([1, 2, 11, 12]) * 10**9,
+                                     np.zeros((4, 3)), np.zeros((4, 3)),
+                                     np.radians([-5.0, -5.0, -5.0, -5.0]))
+    passes = np.array([[0, 5 * 10**9], [10 * 10**9, 15 * 10**9]])
+    headings = quality._pass_headings_deg(targets, passes)
+    assert headings == pytest.approx([95.0, 95.0])
+    sigma = {'along': 0.03, 'across': 0.02, 'vertical': 0.2, 'translation': 0.2,
+             'rotation_deg': 0.2}
+    advice = quality._advice(6, [95.0] * 6, sigma, 0.7, 0.3, False, CalibConfig())
+    assert any('one direction (east, heading 95 deg from north)' in a for a in advice)
