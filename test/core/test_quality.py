@@ -218,6 +218,15 @@ def test_a_box_far_off_the_vehicle_is_named_but_faces_only_reflections_are_not()
     assert any('2.4 m from it' in a and 'vehicle.length' in a for a in far)
     faces = quality._advice(8, [0.0, 180.0], sigma, 0.35, 0.16, False, CalibConfig())
     assert not any('vehicle.length' in a for a in faces)
+    # a 7 m van told a 4.5 m car: 0.84 m with 37 % inside, named without widening
+    van = quality._advice(8, [0.0, 180.0], sigma, 0.37, 0.84, False, CalibConfig())
+    named = [a for a in van if 'vehicle.length' in a]
+    assert len(named) == 1 and '0.8 m from it' in named[0]
+    assert 'uncertainty includes' not in named[0]
+    assert any('uncertainty includes half' in a for a in far)
+    # as far outside but most targets inside: not named
+    inside = quality._advice(8, [0.0, 180.0], sigma, 0.6, 0.84, False, CalibConfig())
+    assert not any('vehicle.length' in a for a in inside)
 
 
 def test_a_box_misfit_from_targets_not_moving_with_the_vehicle_is_not_the_boxs() -> None:
