@@ -1173,19 +1173,19 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                 'vehicle poses may be too sparse or uneven to place it in time (fixes '
                 'below 5 Hz), or the clocks are further apart than that; check the pose '
                 'rate and the clocks before trusting the position along the travel.')
-    shift = selection.extrinsics.time_offset_s
-    fitted = (current.time_offset_s if refinement is not None
-              and config.sync.estimate_time_offset else None)
-    # A shift taken because more passes agreed with it (not because none agreed without)
-    # only gathered passes; where the fit does not confirm it, the reflection model's
-    # depth did the rest (simulated skin cars: 6 of 8 passes at +0.15 s, 3 as stamped, the
-    # fit +1 ms), and no note is owed
-    shift_note = _shift_note(shift, fitted) if selection.passes_as_stamped < 0 else None
     with stage('quality'):
         detection = quality.check_vehicle_detection(current, recording, config)
-        # said only once the vehicle is found: where it never was (a bench drive far out
+        # Said only once the vehicle is found: where it never was (a bench drive far out
         # of range), stage 6 shifted the clocks to make other road users agree, and a
-        # warning that blamed vehicle.* came before the failure that names the cause
+        # warning that blamed vehicle.* came before the failure that names the cause.
+        # A shift taken because more passes agreed with it (not because none agreed
+        # without) only gathered passes; where the fit does not confirm it, the reflection
+        # model's depth did the rest (simulated skin cars: 6 of 8 passes at +0.15 s, 3 as
+        # stamped, the fit +1 ms), and no note is owed.
+        fitted = (current.time_offset_s if refinement is not None
+                  and config.sync.estimate_time_offset else None)
+        shift_note = (_shift_note(selection.extrinsics.time_offset_s, fitted)
+                      if selection.passes_as_stamped < 0 else None)
         if shift_note is not None:
             _LOG.warning('%s', shift_note)
             corrections.append(shift_note)

@@ -666,17 +666,15 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
     # Every caller looks only at the targets near the box: they are picked a few million at
     # a time, as the placed copies of all targets in those frames of an imaging radar (an
     # eighteenth probe's 6,500 a frame) took a gigabyte at once.
-    picked = []
+    picked: list[tuple[I64, I64, F64]] = []
     for chunk in np.array_split(candidates, max(1, candidates.size // _CHUNK_TARGETS)):
         frames = targets.frame_index[chunk]
         world = extrinsics.apply(targets.positions_m[chunk])
         near = box_distance(world_to_vehicle(world, poses.positions_m[frames],
                                              poses.yaw_rad[frames]),
                             config.vehicle) <= config.refine.gate_m
-        picked.append(chunk[near])
-    index = np.concatenate(picked)
-    frames = targets.frame_index[index]
-    world = extrinsics.apply(targets.positions_m[index])
+        picked.append((chunk[near], frames[near], world[near]))
+    index, frames, world = (np.concatenate(part) for part in zip(*picked))
     predicted_vr = _rigid_radial_velocity(world, extrinsics, poses.velocities_mps[frames])
     return checked, index, frames, targets.radial_velocity_mps[index], predicted_vr
 
