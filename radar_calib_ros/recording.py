@@ -25,7 +25,7 @@ from radar_calib_ros.core._angles import circular_mean, wrap_angle
 from radar_calib_ros.errors import ConfigError, InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.types import (
-    F64, I64, FixSample, OdomSample, PoseSamples, RadarFrame, Targets, VehicleTrack)
+    F64, I64, FixSample, OdomSample, PoseSamples, RadarFrame, RadarView, Targets, VehicleTrack)
 
 _LOG = logging.getLogger(__name__)
 
@@ -82,6 +82,21 @@ class Recording:
         of every target (an imaging radar's 48 million took a gigabyte a percentile)."""
         sample: F64 = self.targets.positions_m[::max(1, len(self.targets) // _VIEW_SAMPLE)]
         return sample
+
+    def radar_view(self) -> RadarView:
+        """The radar's view from the data (see :class:`RadarView`); an empty recording's
+        is unbounded."""
+        pts = self.view_sample_m()
+        if pts.shape[0] == 0:
+            half = math.pi / 2
+            return RadarView(math.inf, math.inf, (-math.pi, math.pi), (-half, half))
+        rng = np.linalg.norm(pts, axis=1)
+        az = np.percentile(np.arctan2(pts[:, 1], pts[:, 0]), [1.0, 99.0])
+        el = np.percentile(np.arcsin(np.clip(pts[:, 2] / np.maximum(rng, 1e-9), -1, 1)),
+                           [1.0, 99.0])
+        return RadarView(float(np.percentile(rng, 99.0)),
+                         float(np.percentile(np.hypot(pts[:, 0], pts[:, 1]), 99.0)),
+                         (float(az[0]), float(az[1])), (float(el[0]), float(el[1])))
 
     @property
     def pose_sigma_m(self) -> tuple[float, float]:

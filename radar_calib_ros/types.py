@@ -103,6 +103,17 @@ class Targets:
 
 
 @dataclass(frozen=True, slots=True)
+class RadarView:
+    """The radar's field of view as its targets outline it (the contract has no
+    field-of-view parameter): percentiles of an even sample of all targets, so the edges
+    are blurred by the noise and a few far false alarms do not widen it."""
+    range_m: float             # 99th percentile of the targets' range
+    horizontal_range_m: float  # 99th percentile of their horizontal range
+    azimuth_rad: tuple[float, float]    # 1st and 99th percentiles
+    elevation_rad: tuple[float, float]  # 1st and 99th percentiles
+
+
+@dataclass(frozen=True, slots=True)
 class VehicleTrack:
     """The calibration vehicle's pose stream in the local metric frame.
 

@@ -29,8 +29,8 @@ from radar_calib_ros.core.vehicle import box_distance, world_to_vehicle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.types import (
-    F64, I64, Extrinsics, HypothesisSelection, PoseSamples, QualityReport, Refinement,
-    TrackedTargets)
+    F64, I64, Extrinsics, HypothesisSelection, PoseSamples, QualityReport, RadarView,
+    Refinement, TrackedTargets)
 
 _LOG = logging.getLogger(__name__)
 
@@ -436,12 +436,13 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     local = extrinsics.inverse_apply(hypotheses.reflection_centre_world(poses, config))
     range_m = np.hypot(local[:, 0], local[:, 1])
     azimuth = np.arctan2(local[:, 1], local[:, 0])
-    radar_view = _radar_view(recording)
-    reach = 0.8 * radar_view[0]
+    radar_view = recording.radar_view()
+    reach = 0.8 * radar_view.horizontal_range_m
+    az_lo, az_hi = radar_view.azimuth_rad
     margin = np.radians(3.0)
     speed = np.hypot(vehicle.velocities_mps[:, 0], vehicle.velocities_mps[:, 1])
-    in_view = ((range_m <= reach) & (azimuth > radar_view[1] + margin)
-               & (azimuth < radar_view[2] - margin) & (speed >= _DRIVE_MIN_SPEED_MPS))
+    in_view = ((range_m <= reach) & (azimuth > az_lo + margin) & (azimuth < az_hi - margin)
+               & (speed >= _DRIVE_MIN_SPEED_MPS))
     passes = hypotheses.passes_in_view_ns(vehicle, in_view, extrinsics.translation_m[:2],
                                           reach, config)
     offset_s = config.sync.time_offset + extrinsics.time_offset_s
@@ -623,26 +624,17 @@ def radial_velocity_convention(extrinsics: Extrinsics, recording: Recording,
     return 1.0, same, 0
 
 
-def _radar_view(recording: Recording) -> tuple[float, float, float]:
-    """The radar's view from the data: the 99th percentile of all targets' horizontal range
-    and the 1st and 99th of their azimuth [m, rad, rad] (the contract has no field-of-view
-    parameter), from an even sample of them."""
-    xy = recording.view_sample_m()[:, :2]
-    az_lo, az_hi = np.percentile(np.arctan2(xy[:, 1], xy[:, 0]), [1, 99])
-    return float(np.percentile(np.hypot(xy[:, 0], xy[:, 1]), 99)), float(az_lo), float(az_hi)
-
-
 #: Targets placed in the world at a time when looking for those near the vehicle's box.
 _CHUNK_TARGETS = 2_000_000
 
 
 def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
-                     radar_view: tuple[float, float, float] | None = None
+                     radar_view: RadarView | None = None
                      ) -> tuple[np.ndarray, I64, I64, F64, F64] | None:
     """Frames where the calibration puts the moving vehicle in the radar's view, and the
     targets of those frames near its box (within ``refine.gate_m``): (checked frames mask,
     the targets' index and frame, measured and predicted radial velocity); None when no frame
-    qualifies. ``radar_view`` is :func:`_radar_view`'s, computed here when not given."""
+    qualifies. ``radar_view`` is the recording's, computed here when not given."""
     targets = recording.targets
     if len(targets) == 0:
         return None
@@ -652,7 +644,8 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
     in_sensor = extrinsics.inverse_apply(poses.positions_m)
     range_m = np.hypot(in_sensor[:, 0], in_sensor[:, 1])
     azimuth = np.arctan2(in_sensor[:, 1], in_sensor[:, 0])
-    max_range, az_lo, az_hi = radar_view if radar_view is not None else _radar_view(recording)
+    view = radar_view if radar_view is not None else recording.radar_view()
+    max_range, (az_lo, az_hi) = view.horizontal_range_m, view.azimuth_rad
     line_of_sight = poses.positions_m - extrinsics.translation_m
     line_of_sight /= np.maximum(np.linalg.norm(line_of_sight, axis=1), 1e-9)[:, None]
     radial_speed = np.abs(np.sum(poses.velocities_mps * line_of_sight, axis=1))

@@ -77,8 +77,8 @@ from radar_calib_ros.core.vehicle import (box_corners_world, box_distance, box_l
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.types import (
-    F64, I64, Extrinsics, HypothesisSelection, MountTurn, Refinement, TrackedTargets,
-    VehicleTrack)
+    F64, I64, Extrinsics, HypothesisSelection, MountTurn, RadarView, Refinement,
+    TrackedTargets, VehicleTrack)
 
 _LOG = logging.getLogger(__name__)
 
@@ -709,7 +709,7 @@ def _corridor(est: Extrinsics, candidates: I64, times: _Times, recording: Record
 def _gate(est: Extrinsics, candidates: I64, track_ids: I64, track_size: I64,
           accepted: np.ndarray, times: _Times, recording: Recording, poses: _Poses,
           config: CalibConfig, first_round: bool,
-          view: tuple[float, float, float]) -> np.ndarray:
+          view: RadarView) -> np.ndarray:
     """Mask over ``candidates`` of the targets the estimate puts on or near the vehicle.
 
     The first round starts from the paper's estimate, decimetres off: it gates at
@@ -815,10 +815,10 @@ _OCCLUDER_GAP_M = 0.5
 _OCCLUDER_HEIGHT_M = 1.5
 
 
-def _box_inside_view(pos: F64, yaw: F64, est: Extrinsics, view: tuple[float, float, float],
+def _box_inside_view(pos: F64, yaw: F64, est: Extrinsics, view: RadarView,
                      config: CalibConfig) -> np.ndarray:
     """(n,) True where every corner of the vehicle's footprint lies inside the radar's view
-    in range and azimuth (``view`` from :func:`_range_azimuth_view`).
+    in range and azimuth.
 
     A car that the edge of the view cuts shows only its inner part: the mean of its
     reflections shifts towards the inside, by up to half a car, which no profile over the
@@ -828,7 +828,7 @@ def _box_inside_view(pos: F64, yaw: F64, est: Extrinsics, view: tuple[float, flo
     model 12 -> 15 cm). Over 108 simulated ten-minute runs the horizontal median went from
     8.5 to 6.0 cm (skin), 6.3 to 6.2 (interior) and 6.0 to 6.1 (mixed).
     """
-    max_range, az_lo, az_hi = view
+    max_range, (az_lo, az_hi) = view.range_m, view.azimuth_rad
     x0, x1, y0, y1 = box_limits(config.vehicle)
     c, s = np.cos(yaw), np.sin(yaw)
     ok = np.ones(pos.shape[0], bool)
@@ -1186,8 +1186,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     # offset at the vehicle's speed) cuts a busy junction's moving targets ten-fold.
     # Track sizes are counted before, so the track rule of the gate keeps its meaning.
     track_size = _track_sizes(track_ids)
-    fov = _elevation_view(recording)
-    view = _range_azimuth_view(recording)
+    view = recording.radar_view()
+    fov = view.elevation_rad
 
     def linearised_at(data: _Selected, est: Extrinsics, profile: F64,
                       stride: int = 1) -> tuple[_Model, F64]:
@@ -2059,23 +2059,6 @@ def _debiased_positions(sensor: F64, config: CalibConfig) -> F64:
     scale = np.array([math.exp(0.5 * (s_el2 + s_az2)), math.exp(0.5 * (s_el2 + s_az2)),
                       math.exp(0.5 * s_el2)])
     return sensor * scale
-
-
-def _range_azimuth_view(recording: Recording) -> tuple[float, float, float]:
-    """The radar's view from the data: the 99th percentile of the targets' range and the
-    1st and 99th of their azimuth [m, rad, rad]."""
-    pts = recording.view_sample_m()
-    az_lo, az_hi = np.percentile(np.arctan2(pts[:, 1], pts[:, 0]), [1.0, 99.0])
-    return float(np.percentile(np.linalg.norm(pts, axis=1), 99.0)), float(az_lo), float(az_hi)
-
-
-def _elevation_view(recording: Recording) -> tuple[float, float]:
-    """The radar's elevation field of view, from the data: the 1st and 99th percentiles of
-    the sensor-frame elevation of all targets [rad] (the edges blurred by the noise)."""
-    pts = recording.view_sample_m()
-    el = np.arcsin(np.clip(pts[:, 2] / np.maximum(np.linalg.norm(pts, axis=1), 1e-9), -1, 1))
-    lo, hi = np.percentile(el, [1.0, 99.0]) if el.size else (-np.pi / 2, np.pi / 2)
-    return float(lo), float(hi)
 
 
 def _inside_elevation_view(pos: F64, yaw: F64, est: Extrinsics, fov: tuple[float, float],

@@ -19,6 +19,7 @@ from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import refine, reflection, registration, uncertainty
 from radar_calib_ros.core.vehicle import box_corners_world
 from radar_calib_ros.errors import InsufficientDataError
+from radar_calib_ros.recording import Recording
 from radar_calib_ros.types import Extrinsics, Targets, TrackedTargets
 
 # A profile (order 4) with every kind of term (depth mode, front/rear asymmetry);
@@ -94,7 +95,7 @@ def test_analytic_jacobian_matches_finite_differences(range_terms: str) -> None:
     assert model.n_par == 7 + reflection.n_coefficients(2) + (5 if range_terms == 'full'
                                                               else 1) + 1
     assert mean.size == sigma.size == model.n_par and sigma[-1] == 0.02
-    fov = refine._elevation_view(scene.recording)
+    fov = scene.recording.radar_view().elevation_rad
     assert -np.pi / 2 < fov[0] < fov[1] < np.pi / 2
     rng = np.random.default_rng(1)
     x = np.concatenate([[0.0, 0.0, 0.0], rng.normal(0, 0.1, 3), [0.03],
@@ -614,8 +615,16 @@ def test_frames_with_the_vehicle_cut_by_the_edge_of_the_view_are_left_out() -> N
                     [25.0 * np.cos(a), 25.0 * np.sin(a), -4.7],  # across the azimuth edge
                     [30.0, -10.0, -4.7]])                       # inside, turned
     yaw = np.array([0.0, 0.0, 0.0, np.radians(60.0)])
-    inside = refine._box_inside_view(pos, yaw, radar,
-                                     refine._range_azimuth_view(recording), config)
+    view = Recording.radar_view(recording)   # type: ignore[arg-type]
+    # the range is the targets' 3-D one, 5 m below the radar; the edges are percentiles
+    assert view.range_m > view.horizontal_range_m > 48.0
+    assert view.range_m == pytest.approx(np.percentile(np.hypot(r, 5.0), 99.0))
+    assert np.degrees(view.azimuth_rad) == pytest.approx([-44.1, 44.1], abs=0.3)
+    assert view.elevation_rad[1] == pytest.approx(-np.arctan2(5.0, np.percentile(r, 99.0)),
+                                                  abs=1e-3)
+    empty = SimpleNamespace(view_sample_m=lambda: np.zeros((0, 3)))
+    assert Recording.radar_view(empty).range_m == np.inf   # type: ignore[arg-type]
+    inside = refine._box_inside_view(pos, yaw, radar, view, config)
     assert inside.tolist() == [True, False, False, True]
 
 
