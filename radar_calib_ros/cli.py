@@ -96,7 +96,9 @@ def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | N
             f'delta_op {_num(q.get("outlier_distance_m")):.2f} m  '
             f'delta_p {_num(q.get("closest_target_offset_m")):.2f} m  '
             f'passes {q.get("passes")}  tracks {q.get("tracks_used")}  '
-            f'clock offset {1000 * _num(q.get("time_offset_s")):.1f} ms')
+            f'clock offset {1000 * _num(q.get("time_offset_s")):.1f} ms'
+            + (f' +- {1000 * _num(sigma["time_offset_s"]):.1f}' if 'time_offset_s' in sigma
+               else ''))
         lines.append(
             f'  1-sigma    {_num(sigma.get("translation_m")):.3f} m (along boresight '
             f'{_num(sigma.get("along_boresight_m")):.3f}, across '

@@ -84,6 +84,9 @@ def quality_dict(report: QualityReport) -> dict[str, Any]:
         'vertical_m': d.pop('sigma_vertical_m'),
         'rotation_deg': d.pop('sigma_rotation_deg'),
     }
+    time_sigma = d.pop('sigma_time_offset_s')
+    if math.isfinite(time_sigma):
+        d['sigma']['time_offset_s'] = time_sigma
     d.update(extra)
     return _plain(d)
 

@@ -337,3 +337,6 @@ class QualityReport:
     sigma_rotation_deg: float
     advice: tuple[str, ...] = ()
     extra: dict[str, Any] = field(default_factory=dict)
+    # NaN where the clock offset was not estimated (sync.estimate_time_offset false, or
+    # the paper's stages only)
+    sigma_time_offset_s: float = math.nan

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -484,6 +485,28 @@ def test_stage_6_thresholds_grow_with_a_long_calibration_vehicle() -> None:
         {'vehicle.length': 12.0, 'hypotheses.eps_m': 3.5}))
     assert own.hypotheses.eps_m == 3.5
     assert own.hypotheses.max_rms_m == pytest.approx(2.0 * car.hypotheses.max_rms_m)
+
+
+def test_the_clock_offset_has_its_uncertainty_and_none_where_not_estimated(drive: Any) -> None:
+    """The result gives the clock offset's 1-sigma beside the others (a fitted offset
+    without one cannot be told from a measured one); where it was not estimated there is
+    none."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.live import replace_config
+    from radar_calib_ros.pipeline import run_calibration
+    from radar_calib_ros.result import quality_dict
+
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    result = run_calibration(recording, config)
+    sigma = quality_dict(result.quality)['sigma']
+    held = result.refinement.diagnostics.get('time_offset_held_sigma_s')
+    expected = (held if held is not None
+                else math.sqrt(result.refinement.covariance[6, 6]))
+    assert sigma['time_offset_s'] == pytest.approx(expected) and 1e-4 < expected < 0.1
+    fixed = run_calibration(recording, replace_config(config,
+                                                      **{'sync.estimate_time_offset': False}))
+    assert 'time_offset_s' not in quality_dict(fixed.quality)['sigma']
 
 
 def test_a_radar_on_its_own_clock_calibrates_with_sync_time_offset(drive: Any) -> None:

@@ -165,7 +165,19 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         sigma_vertical_m=sigma['vertical'],
         sigma_rotation_deg=sigma['rotation_deg'],
         advice=tuple(advice),
-        extra=extra)
+        extra=extra,
+        sigma_time_offset_s=_time_offset_sigma_s(sigma, refinement, config))
+
+
+def _time_offset_sigma_s(sigma: dict[str, float], refinement: Refinement | None,
+                         config: CalibConfig) -> float:
+    """1-sigma of the clock offset [s]: the final fit's; where the drives could not show
+    it and it was held, what the first round left it uncertain by (the held value is the
+    paper's stages' guess, not a measurement); NaN where it was not estimated."""
+    if refinement is None or not config.sync.estimate_time_offset:
+        return math.nan
+    held = refinement.diagnostics.get('time_offset_held_sigma_s')
+    return float(held) if held is not None else float(sigma['time_offset_s'])
 
 
 def uncertainty_from_covariance(covariance: F64, rotation: F64) -> dict[str, float]:
