@@ -15,10 +15,13 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import CalibrationError, ResultFileError, exit_code
+
+if TYPE_CHECKING:
+    from radar_calib_ros.recording import Recording
 
 _LOG = logging.getLogger('radar_calib_ros')
 
@@ -115,6 +118,19 @@ def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | N
     return lines
 
 
+class _LoggedWarnings(logging.Handler):
+    """The warnings the pipeline logged while it ran: the advice printed after the summary
+    leaves those out, as they were said already (a nineteenth probe read the note on
+    folded radial velocities twice)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: set[str] = set()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.add(record.getMessage())
+
+
 def _num(value: Any) -> float:
     return float(value) if isinstance(value, (int, float)) else math.nan
 
@@ -129,7 +145,13 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     _check_writable(args.output, args.json)
     _warn_frame_id(args.bag, config)
     progress = _Progress(args.progress if args.progress is not None else sys.stderr.isatty())
-    result, read_s = calibrate_bag(args.bag, config, progress=progress)
+    logged = _LoggedWarnings()
+    package_log = logging.getLogger('radar_calib_ros')
+    package_log.addHandler(logged)
+    try:
+        result, read_s = calibrate_bag(args.bag, config, progress=progress)
+    finally:
+        package_log.removeHandler(logged)
     calibration = result.calibration(config)
     write_result_yaml(args.output, calibration)
     if args.json:
@@ -137,7 +159,8 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     for line in summary_lines(calibration, result.stage_times_s, read_s):
         print(line, file=out)
     for advice in calibration['quality'].get('advice') or []:
-        print(f'warning: {advice}', file=sys.stderr)
+        if advice not in logged.messages:
+            print(f'warning: {advice}', file=sys.stderr)
     print(f'result written to {args.output}' + (f' and {args.json}' if args.json else ''),
           file=out)
     if args.report:
@@ -167,15 +190,10 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     import json
 
     from radar_calib_ros.evaluate import evaluate_recording, evaluation_dict, format_evaluation
-    from radar_calib_ros.io.bag import read_recording
-    from radar_calib_ros.result import load_result, write_atomic
+    from radar_calib_ros.result import write_atomic
     start = time.perf_counter()
     config = _load_config(args.params)
-    # a bad file fails before the bag is read
-    calibration = load_result(args.calibration, config.radar.frame_id)
-    recording = read_recording(args.bag, config,
-                               radar_topic=_topic_of_frame(args.bag, config,
-                                                           str(calibration.get('radar_frame'))))
+    calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
     read_s = time.perf_counter() - start
     evaluation = evaluate_recording(recording, calibration, config,
                                     truth=_ground_truth(args.bag))
@@ -188,18 +206,31 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
-    from radar_calib_ros.io.bag import read_recording
     from radar_calib_ros.report import report_recording
-    from radar_calib_ros.result import load_result
     start = time.perf_counter()
     config = _load_config(args.params)
-    calibration = load_result(args.calibration)
-    recording = read_recording(args.bag, config)
+    calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
     files = report_recording(args.out, recording, calibration, config,
                              truth=_ground_truth(args.bag), source=str(args.bag))
     print(f'report written to {files.html} ({len(files.figures)} figures, '
           f'{time.perf_counter() - start:.1f} s)', file=out)
     return 0
+
+
+def _calibrated_recording(bag: str, calibration_path: str,
+                          config: CalibConfig) -> tuple[dict[str, Any], Recording]:
+    """The calibration (of ``radar.frame_id`` where the file holds several radars') and the
+    recording of that radar's topic (found by its frame where the parameters name none),
+    for ``evaluate`` and ``report`` alike: ``report`` read the bag's only radar topic and
+    refused one radar's result of ``--all-radars`` that ``evaluate`` took."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.result import load_result
+    # a bad file fails before the bag is read
+    calibration = load_result(calibration_path, config.radar.frame_id)
+    recording = read_recording(bag, config,
+                               radar_topic=_topic_of_frame(bag, config,
+                                                           str(calibration.get('radar_frame'))))
+    return calibration, recording
 
 
 def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:

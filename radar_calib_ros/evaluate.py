@@ -235,6 +235,8 @@ def evaluation_dict(evaluation: Evaluation) -> dict[str, Any]:
     """The evaluation as plain JSON-ready types (NaN as null)."""
     p = evaluation.paper
     return {
+        # which radar was evaluated (a bag of several: a nineteenth probe could not tell)
+        'radar_frame': evaluation.calibration.get('radar_frame'),
         'inlier_ratio': _finite(p.inlier_ratio),
         'outlier_distance_m': _finite(p.outlier_distance_m),
         'closest_target_offset_m': _finite(p.closest_target_offset_m),
@@ -267,7 +269,9 @@ def format_evaluation(evaluation: Evaluation) -> str:
     p = evaluation.paper
     rec = evaluation.recording
     lines = [
-        f'evaluation on {rec.duration_s:.0f} s of recording: {evaluation.vehicle_track_ids.size}'
+        f'evaluation of the calibration of radar frame '
+        f'{evaluation.calibration.get("radar_frame", "?")!r} on {rec.duration_s:.0f} s of '
+        f'recording: {evaluation.vehicle_track_ids.size}'
         f' of {evaluation.n_tracks} tracks associated with the calibration vehicle (mean '
         f'offset <= {metrics.PAPER_MAX_MEAN_OFFSET_M:g} m), {p.n_targets} targets in '
         f'{p.n_frames} frames',

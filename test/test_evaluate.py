@@ -147,7 +147,10 @@ def test_cli_text_and_json(sim: SimulationSummary, tmp_path: Path,
     assert 'r_i' in out and 'delta_op' in out and 'delta_p' in out and 'range [m]' in out
     assert 'against the ground truth: horizontal 0.0 cm' in out
     assert "bird's-eye figures" in out and 'do not see the altitude or the roll' in out
+    frame = load_result(cal)['radar_frame']
+    assert f'calibration of radar frame {frame!r}' in out
     doc = json.loads(out_json.read_text())
+    assert doc['radar_frame'] == frame
     assert 0.6 < doc['inlier_ratio'] <= 1.0
     assert doc['n_targets'] == sum(b['n_targets'] for b in doc['range_bins'])
     assert doc['ground_truth_errors']['horizontal_m'] < 1e-6
