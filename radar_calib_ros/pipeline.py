@@ -152,18 +152,26 @@ def _targets_per_frame(recording: Recording, tracked: TrackedTargets) -> float |
     return float(np.median(per_frame))
 
 
-def _sparse_radar_settings(config: CalibConfig) -> dict[str, int]:
+#: Association gate for a sparse radar [m]: a car's one to three targets a frame jump
+#: about its length from frame to frame, on top of a frame's travel (1.7 m at 17 m/s and
+#: 10 Hz), beyond the default 3 m (a nineteenth probe's 10 Hz radar was refused with the
+#: other sparse settings and calibrated to 0.23 m with this gate).
+_SPARSE_GATE_M = 5.0
+
+
+def _sparse_radar_settings(config: CalibConfig) -> dict[str, float]:
     """The clustering and tracking settings for a radar with about one target per road user
-    a frame: clusters of two over six frames, tracks of five and six frames. Only ever
-    looser than ``config``'s."""
+    a frame: clusters of two over six frames, tracks of five and six frames, a wider
+    association gate. Only ever looser than ``config``'s."""
     cl, assoc, hyp = config.cluster, config.associate, config.hypotheses
     return {'cluster.min_samples': max(1, min(cl.min_samples, 2)),
             'cluster.accumulate_frames': max(cl.accumulate_frames, 6),
             'associate.min_track_frames': min(assoc.min_track_frames, 5),
+            'associate.gate_m': max(assoc.gate_m, _SPARSE_GATE_M),
             'hypotheses.min_track_frames': min(hyp.min_track_frames, 6)}
 
 
-def _settings_text(settings: dict[str, int]) -> str:
+def _settings_text(settings: dict[str, float]) -> str:
     parts = [f'{name}: {value}' for name, value in settings.items()]
     return ', '.join(parts[:-1]) + ' and ' + parts[-1]
 
@@ -321,21 +329,28 @@ _SHIFT_CONFIRMED_S = 0.1
 def _held_clock_note(held_sigma_s: float, offset_s: float, config: CalibConfig) -> str:
     """What to say of a clock offset the final fit could not measure and held at stage 6's
     ``offset_s`` (on top of ``sync.time_offset``)."""
-    # Held at the edge of stage 6's search, the offset is what made the passes agree there,
-    # not a measured one (an eighteenth probe's 12 m bus told a 4.9 m car: held at +0.250 s
-    # with the clocks in step, and the note read as measured)
+    # Held away from zero, the offset is what made stage 6's passes agree, not a measured
+    # one, and a box misplaced along the vehicle makes them agree there as readily as the
+    # clocks (a nineteenth probe's rear_overhang told 2.6 m for 1.1: held at +0.150 s with
+    # the clocks in step; an eighteenth's 12 m bus told a 4.9 m car: at the +0.250 s limit)
+    shifted = abs(offset_s) >= 0.5 * _CLOCK_STEP_S
     at_limit = (config.sync.max_time_offset > 0
                 and abs(offset_s) >= config.sync.max_time_offset - 0.5 * _CLOCK_STEP_S)
-    return ('The drives did not show the radar\'s clock offset (the vehicle kept its speed '
+    text = ('The drives did not show the radar\'s clock offset (the vehicle kept its speed '
             'through the view, where an offset only moves it along its own travel; the first '
             f'fit left it uncertain by {held_sigma_s:.2f} s): it was held at {offset_s:+.3f} s '
-            'on top of sync.time_offset' + (
-                ', where the paper\'s stages found the passes to agree best, at the limit of '
-                'their search (sync.max_time_offset): an offset there is more often vehicle.* '
-                'not describing the vehicle (its box misplaces each pass along its travel) '
-                'than the clocks. Check vehicle.* first; set ' if at_limit else '. Set ')
-            + 'sync.time_offset if the clocks are known to differ, or drive through the view '
-            'with a stop or a turn to measure it.')
+            'on top of sync.time_offset')
+    if shifted:
+        text += (', where the paper\'s stages found the passes to agree best'
+                 + (', at the limit of their search (sync.max_time_offset)' if at_limit else '')
+                 + ': a shift there is ' + ('more often' if at_limit else 'as often')
+                 + ' vehicle.* not describing the vehicle (a wrong vehicle.rear_overhang or '
+                 'vehicle.length misplaces each pass along its travel) '
+                 + ('than' if at_limit else 'as') + ' the clocks. Check vehicle.* first; set ')
+    else:
+        text += '. Set '
+    return (text + 'sync.time_offset if the clocks are known to differ, or drive through the '
+            'view with a stop or a turn to measure it.')
 
 
 def _shift_note(shift_s: float, fitted_s: float | None) -> str | None:
@@ -1184,8 +1199,11 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         # stamped, the fit +1 ms), and no note is owed.
         fitted = (current.time_offset_s if refinement is not None
                   and config.sync.estimate_time_offset else None)
+        # a held offset is stage 6's shift, said with the hold (``_held_clock_note``)
+        held_shift = (refinement is not None
+                      and 'time_offset_held_sigma_s' in refinement.diagnostics)
         shift_note = (_shift_note(selection.extrinsics.time_offset_s, fitted)
-                      if selection.passes_as_stamped < 0 else None)
+                      if selection.passes_as_stamped < 0 and not held_shift else None)
         if shift_note is not None:
             _LOG.warning('%s', shift_note)
             corrections.append(shift_note)

@@ -429,6 +429,8 @@ def test_a_sparse_radar_refused_at_stage_6_is_calibrated_with_sparse_settings(
     loose = found[0]
     assert (loose.cluster.min_samples, loose.cluster.accumulate_frames,
             loose.associate.min_track_frames, loose.hypotheses.min_track_frames) == (2, 6, 5, 6)
+    # one to three targets a frame jump about the car's length: a wider association gate
+    assert loose.associate.gate_m == 5.0 > config.associate.gate_m
     # already that loose: nothing more to try
     assert _sparse_radar_config(sparse, track_targets(sparse, loose), loose) is None
 
@@ -708,11 +710,20 @@ def test_one_direction_of_two_agreeing_tries_other_offsets(
 
 
 def test_a_clock_offset_held_at_the_limit_of_the_search_is_not_taken_for_the_clocks() -> None:
-    """Held where stage 6's search ends, the offset is what made the passes agree (a bus
-    told a car), and the note says to check vehicle.* first; held inside it, it does not."""
+    """Held where stage 6 shifted the clocks, the offset is what made the passes agree (a bus
+    told a car, a wrong rear overhang), and the note says to check vehicle.* first (more
+    often the cause at the limit of the search); held at zero, it does not."""
     config = CalibConfig()
     at_limit = pipeline._held_clock_note(0.15, config.sync.max_time_offset, config)
     assert 'at the limit of their search (sync.max_time_offset)' in at_limit
     assert 'Check vehicle.* first' in at_limit and at_limit.endswith('to measure it.')
-    inside = pipeline._held_clock_note(0.15, 0.05, config)
-    assert 'limit' not in inside and 'held at +0.050 s on top of sync.time_offset. Set' in inside
+    assert 'more often vehicle.* not describing the vehicle' in at_limit
+    # inside the search, a wrong rear_overhang shifts the passes as readily (a nineteenth
+    # probe: held at +0.150 s, the clocks in step): named beside the clocks
+    inside = pipeline._held_clock_note(0.15, 0.15, config)
+    assert 'limit' not in inside and 'held at +0.150 s on top of sync.time_offset, where' in inside
+    assert 'as often vehicle.* not describing' in inside and 'vehicle.rear_overhang' in inside
+    assert 'Check vehicle.* first' in inside
+    unshifted = pipeline._held_clock_note(0.15, 0.0, config)
+    assert 'vehicle.*' not in unshifted and 'held at +0.000 s on top of sync.time_offset. Set' in (
+        unshifted)
