@@ -195,6 +195,11 @@ class RefineConfig:
     # long-range radar: 36 -> 78 cm).
     profile_harmonics: int = _p(8, 'Fourier order of the reflection profile over aspect angle',
                                 lo=0, hi=12)
+    # See ``core/reflection.py`` for why: without them a car reflecting at its nearest
+    # corner put the radar 0.2-0.8 m along its boresight at a fifth of that in sigma.
+    profile_steps: bool = _p(
+        True, 'the reflection profile switches between front and rear, and between the '
+        'sides, as a step where the near face changes (false: Fourier terms only)')
     profile_range_terms: str = _p(
         'depth', 'how the reflection profile may change with range: only its depth along the '
         "line of sight ('depth') or every horizontal coefficient ('full')",

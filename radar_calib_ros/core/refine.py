@@ -26,7 +26,9 @@ Gauge and priors (the least we can defend):
   lateral profile; the depth along the line of sight stays free (and may drift linearly
   with range, one more coefficient) and is resolved only by seeing an aspect from several
   bearings. Its trade-off with the radar's position along the boresight is reported, not
-  hidden.
+  hidden. Two smoothed steps let the near face switch from front to rear and from one
+  side to the other (``core/reflection.py``): smoothed by the Fourier terms, that switch
+  pinned the near side's offset, and with it the position, where the views do not.
 * The mean reflection height cannot be told from the radar's altitude by the vehicle alone
   (both shift every target's height equally). A stated prior fixes it:
   ``refine.reflection_height_m`` above the road, +- ``refine.reflection_height_sigma_m``;
@@ -2009,6 +2011,10 @@ def reflection_height_prior(config: CalibConfig) -> tuple[float, float]:
     return cfg.reflection_height_m * scale, cfg.reflection_height_sigma_m * scale
 
 
+#: Prior sigma that holds the profile's steps at zero (``refine.profile_steps`` false) [m].
+_HELD_STEP_M = 1e-6
+
+
 def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F64, F64]:
     """Prior means (NaN = none) and sigmas of all parameters (see the module docstring)."""
     veh = config.vehicle
@@ -2035,6 +2041,8 @@ def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F6
     height, height_sigma = reflection_height_prior(config)
     prof_mean[idx['c0']] = height - veh.ref_height
     prof_sigma[idx['c0']] = height_sigma
+    if not config.refine.profile_steps:
+        prof_sigma[[idx['sx'], idx['sy']]] = _HELD_STEP_M
     mean[i_prof:i_prof + prof_mean.size] = prof_mean
     sigma[i_prof:i_prof + prof_mean.size] = prof_sigma
     # range slopes: metres per unit of relative range

