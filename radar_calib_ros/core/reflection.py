@@ -41,10 +41,11 @@ had 22 of 30 recordings 0.2-0.8 m off along the boresight at a reported 0.09-0.3
 the steps 0 of 30 outside two sigma, the error halved and the uncertainty shows what the
 views cannot tell. (On our own simulator the horizontal medians moved 7.3 / 6.6 / 7.4 ->
 5.2 / 5.5 / 8.8 cm, interior / mixed / skin.) ``refine.profile_steps`` false holds both at
-zero. The mirror
-symmetry (a car seen at aspect -alpha is the mirror image in y of the car seen at alpha) is
-the gauge: it removes the sine terms of m_x and the cosine terms of m_y, which would
-otherwise absorb a radar displacement across the line of sight. The one mode it does not
+zero.
+
+The mirror symmetry (a car seen at aspect -alpha is the mirror image in y of the car seen
+at alpha) is the gauge: it removes the sine terms of m_x and the cosine terms of m_y, which
+would otherwise absorb a radar displacement across the line of sight. The one mode it does not
 remove, a pure depth along the line of sight (a_1 = b_1), trades off against the radar's
 position along its boresight when the vehicle is seen from one bearing only; the refinement
 reports that uncertainty instead of assuming it away.
