@@ -1270,3 +1270,24 @@ def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
     assert out.diagnostics['tilt_held']['moved_deg'] == moved_deg
     assert out.diagnostics['advice'][0].startswith('The vehicle was seen along one road only')
     assert out.diagnostics['sigma_vertical_m'] == pytest.approx(math.sqrt(out.covariance[5, 5]))
+
+
+def test_the_start_uncertainty_counts_only_where_the_data_leave_the_position_to_the_prior(
+        ) -> None:
+    """Straight drives along one road leave the position along it to the prior around the
+    paper's estimate, which can be a car length off there: the covariance says a car
+    length in that direction and adds nothing where the data measure the position."""
+    config = CalibConfig()
+    n_par = 8
+    prior = np.zeros((n_par, n_par))
+    prior[3, 3] = prior[4, 4] = 1.0 / refine._START_SIGMA_M ** 2
+    hessians = np.zeros((3, n_par, n_par))
+    hessians[:, 4, 4] = 1e6          # the data measure y to a millimetre, say nothing of x
+    for k in (0, 1, 2, 5, 6, 7):
+        hessians[:, k, k] = 1.0
+    passes = uncertainty.PassCovariance(np.zeros((n_par, n_par)), np.zeros((3, n_par)), 3,
+                                        1.0, hessians, np.zeros((3, n_par)))
+    term = refine._start_term(passes, prior, config)
+    length = config.vehicle.length
+    assert term[3, 3] == pytest.approx(length ** 2 - refine._START_SIGMA_M ** 2, rel=1e-6)
+    assert term[4, 4] < 1e-6 and np.allclose(term[[0, 1, 2, 5, 6, 7]], 0.0)
