@@ -1917,12 +1917,11 @@ def _start_term(passes: uncertainty.PassCovariance, prior_hessian: F64,
     the data measure the position (junctions, turns) it adds nothing.
     """
     scale2 = (_START_ERROR_LENGTHS * config.vehicle.length / _START_SIGMA_M) ** 2
-    hessian = passes.hessians.sum(axis=0) + prior_hessian
-    h_inv = np.linalg.pinv(hessian)
     p_xy = np.zeros_like(prior_hessian)
     p_xy[3:5, 3:5] = prior_hessian[3:5, 3:5]
-    term: F64 = max(scale2 - 1.0, 0.0) * (h_inv @ p_xy @ h_inv)
-    return 0.5 * (term + term.T)
+    term: F64 = max(scale2 - 1.0, 0.0) * uncertainty.prior_part_covariance(
+        passes, prior_hessian, p_xy)
+    return term
 
 
 def _pose_block(covariance: F64, estimate_tau: bool) -> F64:

@@ -103,9 +103,25 @@ def pass_jackknife_covariance(jacobian: F64, residuals: F64, pass_id: I64,
         t_scale = 1.0
     covariance = t_scale ** 2 * jack
     if prior_term:
-        covariance = covariance + h_inv @ prior_hessian @ h_inv
+        covariance = covariance + _prior_term(h_inv, prior_hessian)
     covariance = 0.5 * (covariance + covariance.T)
     return PassCovariance(covariance, influences, n_passes, t_scale, h_pass, g_pass)
+
+
+def _prior_term(h_inv: F64, prior_part: F64) -> F64:
+    """H^-1 P H^-1: the covariance a prior (or the part ``prior_part`` of the priors) adds
+    where the data leave the estimate to it."""
+    term: F64 = h_inv @ prior_part @ h_inv
+    return term
+
+
+def prior_part_covariance(passes: PassCovariance, prior_hessian: F64,
+                          prior_part: F64) -> F64:
+    """The covariance term of ``prior_part`` (a part of ``prior_hessian``) at the solution
+    of ``passes``, as :func:`pass_jackknife_covariance` adds it for all the priors: for
+    asking how much a prior whose own uncertainty was understated would add."""
+    term = _prior_term(_inverse(passes.hessians.sum(axis=0) + prior_hessian), prior_part)
+    return 0.5 * (term + term.T)
 
 
 def _left_out_steps(h_groups: F64, g_groups: F64, hessian: F64) -> F64:
