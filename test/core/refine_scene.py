@@ -40,6 +40,12 @@ GEOMETRIES = {
     'head_on': [('line', 130, 3.5, 40, 3.5), ('line', 40, -3.5, 130, -3.5),
                 ('line', 130, 0.5, 40, 0.5), ('line', 40, -0.5, 130, -0.5),
                 ('line', 130, 3.5, 40, 3.5), ('line', 40, -3.5, 130, -3.5)],
+    # mid-block: straight drives along the road the radar looks down (head-on, tail-on),
+    # then two drives across its view (the last two passes)
+    'mid_block': [('line', 90, 3.5, 12, 3.5), ('line', 12, -3.5, 90, -3.5),
+                  ('line', 90, 0.5, 12, 0.5), ('line', 12, -0.5, 90, -0.5),
+                  ('line', 90, 3.5, 12, 3.5), ('line', 12, -3.5, 90, -3.5),
+                  ('line', 30, -40, 30, 40), ('line', 34, 40, 34, -40)],
 }
 
 

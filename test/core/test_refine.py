@@ -252,6 +252,39 @@ def test_head_on_views_report_a_large_boresight_sigma_and_advise_a_drive() -> No
     assert 'boresight' in advice and 'bound' in advice and 'cross the view' in advice
 
 
+def _mid_block_started_off(shift_m: float):  # type: ignore[no-untyped-def]
+    """Mid-block: the paper's stages accepted the straight drives only, and put the radar
+    ``shift_m`` forward along the boresight (their depth trade-off)."""
+    scene = make_scene(8, model='interior', geometry='mid_block')
+    boresight = scene.truth.rotation[:, 0].copy()
+    boresight[2] = 0.0
+    boresight /= np.linalg.norm(boresight)
+    start = Extrinsics(scene.truth.rotation, scene.truth.translation_m + shift_m * boresight,
+                       0.0)
+    selection = dataclasses.replace(scene.selection, accepted_track_ids=tuple(range(6)),
+                                    extrinsics=start)
+    return dataclasses.replace(scene, initial=start, selection=selection)
+
+
+def test_drives_across_the_view_left_out_by_a_start_a_car_length_off_are_found(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Started 3 m forward, the two drives across the view lie beside the box and the gate
+    leaves them out; the straight drives cannot tell. The open direction is searched for
+    them and the fit from there takes them in."""
+    scene = _mid_block_started_off(3.0)
+    ref = _run(scene)
+    err = errors(ref.extrinsics, scene.truth)
+    assert err['horizontal'] < 0.3
+    assert ref.n_passes == 8
+    assert np.linalg.norm(ref.diagnostics['rescan_shift_m']) > 2.0
+    # without the search the fit stays where it started, a car length's share off
+    monkeypatch.setattr(refine, '_RESCAN_MIN_HALF_WIDTH_M', math.inf)
+    held = _run(scene)
+    assert errors(held.extrinsics, scene.truth)['horizontal'] > 2.0
+    assert held.n_passes == 6
+    assert 'rescan_shift_m' not in held.diagnostics
+
+
 def test_diverse_views_give_no_advice() -> None:
     scene = make_scene(6, model='profile', profile=_PROFILE, geometry='diverse')
     ref = _run(scene)
