@@ -9,7 +9,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -1062,6 +1062,11 @@ def _mirrored_axis(recording: Recording, config: CalibConfig) -> str | None:
     return 'z' if abs(math.atan2(rot[2, 1], rot[2, 2])) > math.pi / 2 else 'y'
 
 
+#: The final fit's position along the boresight is taken as left to its start from this
+#: 1-sigma [m] (twice the half-metre prior around the start).
+_OPEN_ALONG_M = 1.0
+
+
 def _run_calibration(recording: Recording, config: CalibConfig,
                      progress: ProgressFn | None) -> CalibrationResult:
     stage = _StageClock(progress)
@@ -1120,9 +1125,12 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         _LOG.info('%s', sparse_note)
     stage_extrinsics = {'hypotheses': selection.extrinsics}
     current = selection.extrinsics
+    closest: Extrinsics | None = None
     if config.refine.polygon:
         with stage('polygon'):
-            current = polygon.refine_polygon(current, recording, tracked, selection, config)
+            closest = polygon.closest_target_fit(current, recording, tracked, selection,
+                                                 config)
+            current = polygon.polygon_offset(closest, recording, tracked, selection, config)
         stage_extrinsics['polygon'] = current
     # The contract's v_r convention is a range rate; where the radar's is the opposite, the
     # paper's stages never noticed (they use |v_r| or compare v_r with v_r) but the final
@@ -1167,6 +1175,14 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         with stage('refine'):
             refinement = refine.refine_extrinsics(current, recording, tracked, selection,
                                                   config, ground_normal=ground.normal)
+            if (closest is not None and refinement.diagnostics['sigma_along_boresight_m']
+                    >= _OPEN_ALONG_M):
+                # The drives leave the position along the boresight to where the fit
+                # started (``polygon.bracketed_start``): start where that is least wrong.
+                with suppress(InsufficientDataError):
+                    refinement = refine.refine_extrinsics(
+                        polygon.bracketed_start(closest, current), recording, tracked,
+                        selection, config, ground_normal=ground.normal)
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
         turn = refinement.diagnostics.get('mount_turn')

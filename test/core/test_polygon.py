@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from calib_scene import make_scene
+from refine_scene import make_scene as make_refine_scene
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import hypotheses, polygon, registration
@@ -90,3 +91,30 @@ def test_closest_targets_pick_the_nearest_target_per_frame() -> None:
     # diagonal: the front-left corner
     closest = polygon.closest_targets(targets, np.array([20.0, 10.0, 5.0]), cfg)
     np.testing.assert_allclose(closest.box_xy_m[0], [3.9, 0.95])
+
+
+@pytest.mark.parametrize('model', ['interior', 'skin'])
+def test_each_step_errs_to_its_own_side_where_only_front_and_rear_are_seen(
+        model: str) -> None:
+    """Seen head-on and tail-on only, the depth of the reflections trades against the
+    radar's distance: the closest-target step puts the nearest target on the outline (too
+    far out for a car that reflects from inside its footprint), the polygon loss draws the
+    box over the targets (forward, as far as they let it). The final fit starts midway."""
+    scene = make_refine_scene(1, model=model, geometry='head_on')
+    boresight = scene.truth.rotation[:, 0].copy()
+    boresight[2] = 0.0
+    boresight /= np.linalg.norm(boresight)
+    start = Extrinsics(scene.truth.rotation, scene.truth.translation_m + 0.8 * boresight)
+
+    def along(est: Extrinsics) -> float:
+        return float((est.translation_m - scene.truth.translation_m) @ boresight)
+    closest = polygon.closest_target_fit(start, scene.recording, scene.tracked,
+                                         scene.selection, scene.config)
+    est = polygon.polygon_offset(closest, scene.recording, scene.tracked, scene.selection,
+                                 scene.config)
+    midway = polygon.bracketed_start(closest, est)
+    assert along(est) > along(closest) + 0.25
+    if model == 'interior':
+        assert along(closest) < -0.5 and abs(along(est)) < 0.2
+    assert along(midway) == pytest.approx(0.5 * (along(closest) + along(est)))
+    np.testing.assert_array_equal(midway.rotation, est.rotation)
