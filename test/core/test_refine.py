@@ -790,6 +790,24 @@ def test_a_side_fire_radar_is_not_told_to_cross_its_view_again() -> None:
     assert 'cross the view (heading west or east)' in mixed
 
 
+def test_passes_along_the_boresight_are_told_to_cross_the_view_first() -> None:
+    """Boresight east, every pass eastbound or westbound (a radar mid-block looking down
+    its road): crossing comes first, before any lane of that road; with one pass across the
+    view, the lanes come first and crossing is 'better still'."""
+    coverage = uncertainty.view_coverage(np.zeros(10), np.zeros(10), np.ones(10))
+    lane = uncertainty.DriveCandidate(math.pi, 20.0, 0.3, 1.0, False)
+    along = uncertainty.drive_advice(0.5, 0.05, coverage, [lane], 0.0,
+                                     headings_rad=[0.02, math.pi, -0.1])
+    assert along[1].startswith('First, where the roads allow, cross the view (heading '
+                               'north or south)')
+    assert along[2].startswith('Drive westbound') and len(along) == 3
+    assert not any('Better still' in s for s in along)
+    mixed = uncertainty.drive_advice(0.5, 0.05, coverage, [lane], 0.0,
+                                     headings_rad=[0.0, math.pi / 2.0])
+    assert mixed[1].startswith('Drive westbound')
+    assert mixed[2].startswith('Better still, where the roads allow, cross the view')
+
+
 def test_halves_that_disagree_beyond_the_covariance_are_flagged() -> None:
     shift = np.array([0.0, 0.0, math.radians(1.0), 0.3, 0.4, 0.0, 0.0])
     tight = np.diag([math.radians(0.1) ** 2] * 3 + [0.01] * 3 + [1e-6])
