@@ -1446,8 +1446,10 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             tau_sigma = _parameter_sigma(model, fit.x, 6, stride)
             if tau_sigma > _TAU_HOLD_SIGMA_S:
                 # the drives cannot show the clock offset: hold it where the paper's stages
-                # had it and fit this round again from their estimate
-                tau_held = tau_sigma
+                # had it and fit this round again from their estimate. What it is uncertain
+                # by counts how far the free round put it from there too: a nineteenth
+                # probe's held offsets were 35 ms off at a first-round sigma of 10-13 ms.
+                tau_held = math.hypot(tau_sigma, est.time_offset_s - initial.time_offset_s)
                 _LOG.info('the clock offset is not observable here (sigma %.3f s after the '
                           'first round, which moved it %+.3f s): held at %+.3f s', tau_sigma,
                           est.time_offset_s - start.time_offset_s, initial.time_offset_s)
