@@ -147,6 +147,9 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         if 'azimuth_noise_deg' in refinement.diagnostics:
             extra['azimuth_noise_deg'] = round(
                 float(refinement.diagnostics['azimuth_noise_deg']), 2)
+        if 'elevation_noise_deg' in refinement.diagnostics:
+            extra['elevation_noise_deg'] = round(
+                float(refinement.diagnostics['elevation_noise_deg']), 2)
         if 'azimuth_scale' in refinement.diagnostics:
             extra['azimuth_scale_percent'] = round(
                 100.0 * float(refinement.diagnostics['azimuth_scale']), 2)

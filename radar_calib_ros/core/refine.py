@@ -1364,12 +1364,14 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     stride = 1
     noise_config = config
     azimuth_noise = 0.0
+    elevation_noise = 0.0
     hidden_targets = 0
 
     def fit_round(keep: np.ndarray, every: int) -> tuple[float, float, float]:
         """Fit the gated targets (every ``every``-th by target number) from ``est``;
         returns how far it moved."""
         nonlocal data, model, fit, est, profile, scatter, noise_config, azimuth_noise
+        nonlocal elevation_noise
         if every > 1:
             keep = keep & (candidates % every == 0)
         data = _select(candidates[keep], times.subset(keep), est, recording, poses, scatter,
@@ -1383,9 +1385,14 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # above the configured one (each round anew: the first, gated wide, shows more)
         geometry = model.geometry(fit.x)
         azimuth_noise = _azimuth_noise_deg(geometry, data)
-        noise_config = (dataclasses.replace(config, refine=dataclasses.replace(
-            cfg, azimuth_sigma_deg=azimuth_noise))
-            if _noisy_azimuth(azimuth_noise, cfg.azimuth_sigma_deg) else config)
+        elevation_noise = _elevation_noise_deg(geometry, data)
+        measured = {}
+        if _noisy_azimuth(azimuth_noise, cfg.azimuth_sigma_deg):
+            measured['azimuth_sigma_deg'] = azimuth_noise
+        if _noisy_elevation(elevation_noise, cfg.elevation_sigma_deg):
+            measured['elevation_sigma_deg'] = elevation_noise
+        noise_config = (dataclasses.replace(config, refine=dataclasses.replace(cfg, **measured))
+                        if measured else config)
         scatter = _scatter(geometry, cfg.position_sigma_m, noise_config)
         _LOG.debug('refine round %d: %d targets (every %d), %d iterations, moved %s', rounds,
                    data.index.size, every, fit.iterations, moved)
@@ -1607,6 +1614,16 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             'Set refine.azimuth_sigma_deg to what the radar\'s datasheet says; where it is '
             'this noisy, trust the position along the boresight less than its sigma says.',
             *diagnostics['advice']]
+    if _noisy_elevation(elevation_noise, cfg.elevation_sigma_deg):
+        diagnostics['elevation_noise_deg'] = elevation_noise
+        diagnostics['advice'] = [
+            f'The heights of the vehicle\'s targets show about {elevation_noise:.1f} deg of '
+            f'elevation noise (refine.elevation_sigma_deg is {cfg.elevation_sigma_deg:g}): '
+            'their scatter grows with range as that noise does. The fit weighed the heights '
+            'by it; at the configured noise it had trusted the far targets\' heights too much '
+            'and put the radar decimetres low (an independent generator at 2.5-3 deg: '
+            '0.5-0.7 m, outside its uncertainty). Set refine.elevation_sigma_deg to what the '
+            'radar\'s datasheet says.', *diagnostics['advice']]
     if model.n_par > model.i_end:
         scale = float(x_hat[model.i_end])
         scale_sigma = float(math.sqrt(max(pc.covariance[model.i_end, model.i_end], 0.0)))
@@ -1687,6 +1704,46 @@ def _azimuth_noise_deg(g: dict[str, F64], data: _Selected) -> float:
     slope_var = float(misfit @ misfit) / 8.0 * np.linalg.inv(design.T @ design)[1, 1]
     if coef[1] <= 3.0 * math.sqrt(max(slope_var, 0.0)):
         return 0.0    # no growth with the speed across beyond the scatter of the bins
+    return float(np.degrees(math.sqrt(float(coef[1]))))
+
+
+def _noisy_elevation(shown_deg: float, configured_deg: float) -> bool:
+    return shown_deg >= _ELEVATION_NOISE_RATIO * configured_deg
+
+
+#: Elevation noise shown by the heights, as a multiple of ``refine.elevation_sigma_deg``,
+#: from which it replaces that in the whitening and is named.
+_ELEVATION_NOISE_RATIO = 1.4
+
+
+def _elevation_noise_deg(g: dict[str, F64], data: _Selected) -> float:
+    """The radar's elevation noise [deg] as the heights of the vehicle's targets show it,
+    from the fit's geometry ``g`` (``_Model.geometry``) over ``data``.
+
+    Elevation noise e moves a target vertically by its range times e, so the vertical
+    residuals' variance grows as s_z^2 + (r s_el)^2, s_z the reflectors' own scatter in
+    height. Fitted over ten quantile bins of range with a robust spread per bin (each bin
+    centred on its own median, so a mean height that changes with range does not count);
+    0 where the slope is not three of its standard errors above zero. Only targets that
+    give height information count (``_inside_elevation_view``).
+    """
+    ok = data.vertical_ok
+    if int(ok.sum()) < 10 * _NOISE_BIN_TARGETS:
+        return 0.0
+    rng = g['range'][ok]
+    residual = g['err'][ok, 2]
+    edges = np.quantile(rng, np.linspace(0.0, 1.0, 11))
+    bins = np.clip(np.searchsorted(edges, rng, side='right') - 1, 0, 9)
+    r2 = np.bincount(bins, rng ** 2, minlength=10) / np.maximum(
+        np.bincount(bins, minlength=10), 1)
+    spread2 = np.array([(1.4826 * np.median(np.abs(r - np.median(r)))) ** 2 if r.size else 0.0
+                        for r in (residual[bins == b] for b in range(10))])
+    design = np.column_stack([np.ones(10), r2])
+    coef, *_ = np.linalg.lstsq(design, spread2, rcond=None)
+    misfit = spread2 - design @ coef
+    slope_var = float(misfit @ misfit) / 8.0 * np.linalg.inv(design.T @ design)[1, 1]
+    if coef[1] <= 3.0 * math.sqrt(max(slope_var, 0.0)):
+        return 0.0
     return float(np.degrees(math.sqrt(float(coef[1]))))
 
 

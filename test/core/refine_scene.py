@@ -144,12 +144,13 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
                initial_error: tuple[float, float, float] = (0.3, 1.0, 0.0),
                crawl: bool = False, config: CalibConfig | None = None,
                grade: float = 0.0, steady: bool = False,
-               azimuth_noise_deg: float = 0.3) -> Scene:
+               azimuth_noise_deg: float = 0.3, elevation_noise_deg: float = 1.5) -> Scene:
     """Build a scene; ``initial_error`` = (translation [m], yaw [deg], clock offset [s]);
     ``grade``: the road climbs this much per metre along the boresight, and the car is
     pitched with it (the fixes then declare RTK's 2-3 cm, which the grade is measured by);
     ``steady``: every pass at one constant speed (11 m/s), as on a road without lights;
-    ``azimuth_noise_deg``: the radar's azimuth noise (1 sigma) when ``noise``."""
+    ``azimuth_noise_deg``, ``elevation_noise_deg``: the radar's angle noise (1 sigma)
+    when ``noise``."""
     rng = np.random.default_rng(seed)
     cfg = config or CalibConfig()
     truth = radar_truth()
@@ -240,7 +241,7 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
         e = np.arcsin(sensor[:, 2] / r)
         r = r + rng.normal(0, 0.15, r.size)
         a = a + rng.normal(0, np.radians(azimuth_noise_deg), r.size)
-        e = e + rng.normal(0, np.radians(1.5), r.size)
+        e = e + rng.normal(0, np.radians(elevation_noise_deg), r.size)
         sensor = np.column_stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a),
                                   r * np.sin(e)])
         vr = vr + rng.normal(0, 0.1, vr.size)

@@ -1101,6 +1101,26 @@ def test_a_noisy_azimuth_is_measured_from_the_radial_velocities_and_named() -> N
     assert err['horizontal'] < 2.0 * noisy.diagnostics['sigma_horizontal_m'], err
 
 
+def test_a_noisy_elevation_is_measured_from_the_heights_and_named(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A radar with 3.5 deg of elevation noise (refine.elevation_sigma_deg left at 1.5):
+    the vertical scatter of the vehicle's targets grows with range as that noise does; the
+    fit weighs the heights by it and the advice names it. Left at 1.5 deg, the far targets'
+    heights count too much and the radar came out half a metre low and ~0.9 deg tilted."""
+    plain = _run(make_scene(3, model='interior', geometry='diverse'))
+    assert 'elevation_noise_deg' not in plain.diagnostics
+    scene = make_scene(3, model='interior', geometry='diverse', elevation_noise_deg=3.5)
+    noisy = _run(scene)
+    assert 2.6 < noisy.diagnostics['elevation_noise_deg'] < 4.2
+    assert any('elevation noise' in a and 'refine.elevation_sigma_deg' in a
+               for a in noisy.diagnostics['advice'])
+    err = errors(noisy.extrinsics, scene.truth)
+    assert err['vertical'] < 0.15 and err['rotation'] < 0.3
+    monkeypatch.setattr(refine, '_ELEVATION_NOISE_RATIO', math.inf)
+    unmeasured = errors(_run(scene).extrinsics, scene.truth)
+    assert unmeasured['vertical'] > 0.3 and unmeasured['rotation'] > 0.5
+
+
 def test_frames_where_another_road_user_hides_the_vehicle_are_left_out() -> None:
     """In every second frame of the first pass (beyond 25 m) another road user stands close
     in front of the vehicle (three targets 1-1.4 m in front of its nearest corner, on that
