@@ -2512,9 +2512,20 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     sel = np.flatnonzero(inside)[first]
     a_edges = np.radians(coverage.aspect_edges_deg)
     seen_aspect = g['aspect']
+    # where each direction was driven: a candidate driven the other way is one already
+    # driven where a pose within a road's width heads that way too (the other carriageway)
+    driven_key = np.unique(key, axis=0)
     out: list[uncertainty.DriveCandidate] = []
     for flip, driven in ((0.0, True), (np.pi, False)):
         heading = yaw[sel] + flip
+        if flip:
+            turned = np.column_stack([key[first, :2], np.floor(
+                ((heading + np.pi) % (2 * np.pi)) / (np.pi / 4))])
+            near = (np.abs(turned[:, None, :2] - driven_key[None, :, :2]).max(axis=2) <= 1.0)
+            turn = (turned[:, None, 2] - driven_key[None, :, 2]) % 8
+            already = (near & ((turn <= 1) | (turn == 7))).any(axis=1)
+        else:
+            already = np.ones(sel.size, bool)
         los_dir = np.arctan2(rel[sel, 1], rel[sel, 0])
         aspect = (los_dir + np.pi - heading + np.pi) % (2 * np.pi) - np.pi
         a_bin = np.searchsorted(a_edges, (aspect - a_edges[0]) % (2 * np.pi) + a_edges[0],
@@ -2532,7 +2543,7 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
         for i in np.argsort(-gain)[:3]:
             out.append(uncertainty.DriveCandidate(float(heading[i]), float(p_rng[sel][i]),
                                                   float(p_bear[sel][i]), float(gain[i]),
-                                                  driven))
+                                                  bool(driven or already[i])))
     out.sort(key=lambda c: -c.gain)
     # one suggestion per direction of travel
     unique: list[uncertainty.DriveCandidate] = []

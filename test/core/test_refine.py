@@ -767,6 +767,27 @@ def test_advised_drives_are_never_nearer_than_the_vehicle_was_seen(
     assert f'about {near}-{near + 20} m from the radar' in ' '.join(ref.diagnostics['advice'])
 
 
+def test_a_direction_driven_on_the_other_carriageway_counts_as_driven(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Seen head-on and tail-on on a road driven both ways (lanes 3-7 m apart): a drive
+    the other way is on a lane already driven, not 'a road already driven the other way'
+    (a twenty-first probe, every direction driven twice, was asked to drive westbound).
+    With one direction driven only, the other stays one to drive."""
+    seen: dict[str, list[uncertainty.DriveCandidate]] = {}
+    original = refine._drive_candidates
+
+    def spy(*args):  # type: ignore[no-untyped-def]
+        seen['candidates'] = original(*args)
+        return seen['candidates']
+
+    monkeypatch.setattr(refine, '_drive_candidates', spy)
+    both = _run(make_scene(5, model='interior', geometry='head_on'))
+    assert seen['candidates'] and all(c.driven for c in seen['candidates'])
+    assert not any('driven the other way' in a for a in both.diagnostics['advice'])
+    _run(make_scene(5, model='interior', geometry='head_on', n_passes=1))
+    assert any(not c.driven for c in seen['candidates'])
+
+
 def test_the_cross_the_view_range_starts_beyond_a_blind_zone() -> None:
     coverage = uncertainty.view_coverage(np.zeros(10), np.zeros(10), np.ones(10))
     text = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], 0.0, nearest_m=27.0))
