@@ -227,7 +227,7 @@ class RefineConfig:
         'seen from the front and from the rear; its effect on the fit (mostly roll and pitch) '
         'is added to the reported uncertainty [m]', lo=0.0, hi=5.0)
     model_sigma_height_range_m: float = _p(
-        0.2, "systematic 1-sigma of the change of the vehicle's mean reflection height with "
+        0.3, "systematic 1-sigma of the change of the vehicle's mean reflection height with "
         'range, from the median range to twice it; its effect on the fit (mostly pitch, and '
         'roll where range follows azimuth) is added to the reported uncertainty [m]',
         lo=0.0, hi=5.0)
