@@ -1689,22 +1689,30 @@ def _azimuth_noise_deg(g: dict[str, F64], data: _Selected) -> float:
         return 0.0
     unit, velocity = g['unit_v'], g['point_velocity']
     w_perp = velocity[:, 1] * unit[:, 0] - velocity[:, 0] * unit[:, 1]
-    residual = g['v_pred'] - data.v_mps
-    edges = np.quantile(np.abs(w_perp), np.linspace(0.0, 1.0, 11))
-    bins = np.clip(np.searchsorted(edges, np.abs(w_perp), side='right') - 1, 0, 9)
-    w2 = np.bincount(bins, w_perp ** 2, minlength=10) / np.maximum(
-        np.bincount(bins, minlength=10), 1)
-    if w2[-1] < _NOISE_CROSS_SPEED_MPS ** 2:
+    slope, top = _spread_growth(np.abs(w_perp), g['v_pred'] - data.v_mps)
+    if top < _NOISE_CROSS_SPEED_MPS ** 2:
         return 0.0    # seen head-on only: too little speed across the lines of sight
+    return float(np.degrees(math.sqrt(slope)))
+
+
+def _spread_growth(driver: F64, residual: F64) -> tuple[float, float]:
+    """How the residuals' variance grows with the square of ``driver`` (>= 0): over ten
+    quantile bins of the driver, the robust spread (1.4826 MAD about the bin's median) of
+    the residuals against the bin's mean driver squared, fitted by a straight line. Returns
+    its slope (0 where not three of its standard errors above zero: no growth beyond the
+    scatter of the bins) and the top bin's mean driver squared."""
+    edges = np.quantile(driver, np.linspace(0.0, 1.0, 11))
+    bins = np.clip(np.searchsorted(edges, driver, side='right') - 1, 0, 9)
+    d2 = np.bincount(bins, driver ** 2, minlength=10) / np.maximum(
+        np.bincount(bins, minlength=10), 1)
     spread2 = np.array([(1.4826 * np.median(np.abs(r - np.median(r)))) ** 2 if r.size else 0.0
                         for r in (residual[bins == b] for b in range(10))])
-    design = np.column_stack([np.ones(10), w2])
+    design = np.column_stack([np.ones(10), d2])
     coef, *_ = np.linalg.lstsq(design, spread2, rcond=None)
     misfit = spread2 - design @ coef
     slope_var = float(misfit @ misfit) / 8.0 * np.linalg.inv(design.T @ design)[1, 1]
-    if coef[1] <= 3.0 * math.sqrt(max(slope_var, 0.0)):
-        return 0.0    # no growth with the speed across beyond the scatter of the bins
-    return float(np.degrees(math.sqrt(float(coef[1]))))
+    slope = float(coef[1]) if coef[1] > 3.0 * math.sqrt(max(slope_var, 0.0)) else 0.0
+    return slope, float(d2[-1])
 
 
 def _noisy_elevation(shown_deg: float, configured_deg: float) -> bool:
@@ -1730,21 +1738,8 @@ def _elevation_noise_deg(g: dict[str, F64], data: _Selected) -> float:
     ok = data.vertical_ok
     if int(ok.sum()) < 10 * _NOISE_BIN_TARGETS:
         return 0.0
-    rng = g['range'][ok]
-    residual = g['err'][ok, 2]
-    edges = np.quantile(rng, np.linspace(0.0, 1.0, 11))
-    bins = np.clip(np.searchsorted(edges, rng, side='right') - 1, 0, 9)
-    r2 = np.bincount(bins, rng ** 2, minlength=10) / np.maximum(
-        np.bincount(bins, minlength=10), 1)
-    spread2 = np.array([(1.4826 * np.median(np.abs(r - np.median(r)))) ** 2 if r.size else 0.0
-                        for r in (residual[bins == b] for b in range(10))])
-    design = np.column_stack([np.ones(10), r2])
-    coef, *_ = np.linalg.lstsq(design, spread2, rcond=None)
-    misfit = spread2 - design @ coef
-    slope_var = float(misfit @ misfit) / 8.0 * np.linalg.inv(design.T @ design)[1, 1]
-    if coef[1] <= 3.0 * math.sqrt(max(slope_var, 0.0)):
-        return 0.0
-    return float(np.degrees(math.sqrt(float(coef[1]))))
+    slope, _ = _spread_growth(g['range'][ok], g['err'][ok, 2])
+    return float(np.degrees(math.sqrt(slope)))
 
 
 #: Fewest targets per bin of the azimuth-noise fit, and the least RMS speed across the
