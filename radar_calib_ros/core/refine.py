@@ -1045,8 +1045,27 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
     # memory-bound, and multi-threaded BLAS only spins on a busy machine (measured 10x
     # slower with 2 cores shared). One thread is as fast when idle and far faster when not.
     with threadpool_limits(limits=1, user_api='blas'):
-        refinement = _refine_checked(initial, recording, tracked, selection, config,
-                                     ground_normal, None)
+        start_sigma = _START_SIGMA_M
+        held_note: _Diverged | None = None
+        try:
+            refinement = _refine_checked(initial, recording, tracked, selection, config,
+                                         ground_normal, None)
+        except _Diverged as err:
+            # Every drive runs towards or away from the radar: the position along the
+            # boresight is a flat valley that the reflection depth trades along, and the
+            # half-metre prior did not hold the fit in it (a twenty-second probe's straight
+            # drives: 9 of 17 ran 5-9 m off and were refused as radial velocities gone
+            # wrong, which they were not). There the position is held at the paper's
+            # estimate, whose error the uncertainty reports (a car length, ``_start_term``).
+            if not _drives_along_boresight(initial, recording, tracked, selection, config):
+                raise
+            start_sigma = _HELD_START_SIGMA_M
+            try:
+                refinement = _refine_checked(initial, recording, tracked, selection, config,
+                                             ground_normal, None, start_sigma)
+            except InsufficientDataError:
+                raise err from None
+            held_note = err
         # Drives along one road leave the position along the boresight open by up to a car
         # length, and a drive across the view that would close it then lies that far from
         # the box, outside the gate: seen from a place it was never fitted at (see
@@ -1094,12 +1113,53 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
             drift = more if drift is None else drift.plus(more)
             try:
                 refinement = _refine_checked(initial, recording, tracked, selection, config,
-                                             ground_normal, drift)
+                                             ground_normal, drift, start_sigma)
             except InsufficientDataError:
                 break
             _LOG.info('radar clock drift %.0f +- %.0f ppm, step %.0f ms: refitted',
                       1e6 * drift.rate, 1e6 * drift.sigma, 1e3 * drift.step_s)
+        if held_note is not None:
+            sigma = refinement.diagnostics['sigma_along_boresight_m']
+            refinement.diagnostics['advice'] = [
+                'Every drive ran towards or away from the radar, which leaves its position '
+                'along the boresight to where the paper\'s stages put it: the fit, left free, '
+                f'ran {held_note.shift_m:.1f} m (and {held_note.turn_deg:.1f} deg) off along '
+                'that open direction. The horizontal position was held at the paper\'s '
+                f'estimate, uncertain by about a car length ({sigma:.1f} m along the '
+                'boresight, 1 sigma): cross the view or turn through it to measure it.',
+                *refinement.diagnostics['advice']]
+            _LOG.info('%s', refinement.diagnostics['advice'][0])
         return refinement
+
+
+#: Width of the prior that holds the horizontal position at the paper's estimate where
+#: every drive runs along the boresight and the fit ran off along it [m].
+_HELD_START_SIGMA_M = 0.05
+#: A drive runs along the boresight within this angle of it (either way) [rad], and the
+#: drives all do when this share of the accepted tracks' targets are seen so.
+_ALONG_BORESIGHT_RAD = math.radians(25.0)
+_ALONG_BORESIGHT_SHARE = 0.9
+
+
+def _drives_along_boresight(est: Extrinsics, recording: Recording, tracked: TrackedTargets,
+                            selection: HypothesisSelection, config: CalibConfig) -> bool:
+    """Whether the vehicle heads towards or away from the radar (within
+    ``_ALONG_BORESIGHT_RAD`` of its boresight) wherever the accepted tracks see it."""
+    index = np.asarray(tracked.target_index, np.int64)[np.isin(
+        tracked.track_id, np.asarray(selection.accepted_track_ids, np.int64))]
+    if index.size == 0:
+        return False
+    t0_ns = int(recording.vehicle.stamps_ns[0])
+    poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap,
+                              recording.fix_sigma_m)
+    times = _Times.of(recording, index, config.sync.time_offset, t0_ns, None)
+    valid = times.valid(poses, est.time_offset_s)
+    if not valid.any():
+        return False
+    _, yaw, _, _, _ = times.poses(poses, est.time_offset_s)
+    boresight = math.atan2(est.rotation[1, 0], est.rotation[0, 0])
+    along = np.abs(np.sin(yaw[valid] - boresight)) < math.sin(_ALONG_BORESIGHT_RAD)
+    return float(np.mean(along)) >= _ALONG_BORESIGHT_SHARE
 
 
 #: Shifts along the boresight are searched for left-out drives only where the fit leaves the
@@ -1192,7 +1252,8 @@ def _rescan_better(other: Refinement, first: Refinement) -> bool:
 
 def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                     selection: HypothesisSelection, config: CalibConfig,
-                    ground_normal: F64 | None, drift: ClockDrift | None) -> Refinement:
+                    ground_normal: F64 | None, drift: ClockDrift | None,
+                    start_sigma_m: float = _START_SIGMA_M) -> Refinement:
     """``_refine`` with the model check and a 2-D radar's tilt probes (below)."""
     alternative = None
     if config.refine.model_check:
@@ -1212,8 +1273,8 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
             config.refine, profile_range_terms=other, model_check=False))
         try:
             alternative = _refine(initial, recording, tracked, selection, alt_config,
-                                  None, ground_normal=ground_normal, drift=drift
-                                  ).extrinsics.translation_m
+                                  None, ground_normal=ground_normal, drift=drift,
+                                  start_sigma_m=start_sigma_m).extrinsics.translation_m
         except InsufficientDataError:
             alternative = None
     tilted: list[F64] = []
@@ -1232,11 +1293,13 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
                                float(initial.time_offset_s))
             try:
                 tilted.append(_refine(start, recording, tracked, selection, single,
-                                      None, drift=drift).extrinsics.translation_m)
+                                      None, drift=drift, start_sigma_m=start_sigma_m
+                                      ).extrinsics.translation_m)
             except InsufficientDataError:
                 continue
     refinement = _refine(initial, recording, tracked, selection, config, alternative,
-                         tilted, ground_normal=ground_normal, drift=drift)
+                         tilted, ground_normal=ground_normal, drift=drift,
+                         start_sigma_m=start_sigma_m)
     moved = refinement.diagnostics.get('tilt_from_plane_deg', 0.0)
     spread = refinement.diagnostics.get('line_spread_m', math.inf)
     if moved <= _TILT_MOVED_DEG or spread >= _LINE_SPREAD_M:
@@ -1252,7 +1315,7 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
     try:
         held = _refine(initial, recording, tracked, selection, config, alternative,
                        tilted, ground_normal=ground_normal, drift=drift,
-                       tilt_prior_deg=_HELD_TILT_DEG)
+                       tilt_prior_deg=_HELD_TILT_DEG, start_sigma_m=start_sigma_m)
     except InsufficientDataError:
         return refinement
     free, kept = refinement.extrinsics, held.extrinsics
@@ -1281,7 +1344,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             alternative_translation: F64 | None,
             tilted_translations: list[F64] | None = None, *,
             ground_normal: F64 | None = None, drift: ClockDrift | None = None,
-            tilt_prior_deg: float | None = None) -> Refinement:
+            tilt_prior_deg: float | None = None,
+            start_sigma_m: float = _START_SIGMA_M) -> Refinement:
     cfg = config.refine
     t0_ns = int(recording.vehicle.stamps_ns[0])
     poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap,
@@ -1329,7 +1393,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     harmonics = cfg.profile_harmonics
     x_lo, x_hi, _, _ = box_limits(config.vehicle)
     centre_x = 0.5 * (x_lo + x_hi)
-    prior_mean, prior_sigma = _priors(config, harmonics, estimate_tau)
+    prior_mean, prior_sigma = _priors(config, harmonics, estimate_tau, start_sigma_m)
     if not recording.has_elevation:
         # A 2-D radar (z = 0 for every target) measures no height, so its targets hold no
         # roll or pitch: left free, the fit tilts the radar's plane until it passes through
@@ -1441,9 +1505,12 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                          f'{math.degrees(angle):.1f} deg and the clock offset by {clock:.2f} s '
                          f'from the paper\'s stages\' (what pulls it away is most likely '
                          f'{why})')
-            raise InsufficientDataError(
-                'refine', f'only {index.size} targets within {cfg.gate_m} m of the vehicle '
-                f'box {where}, need at least {_MIN_TARGETS}')
+            reason = (f'only {index.size} targets within {cfg.gate_m} m of the vehicle '
+                      f'box {where}, need at least {_MIN_TARGETS}')
+            if rounds == 1:
+                raise InsufficientDataError('refine', reason)
+            # the first round took the estimate away from the vehicle
+            raise _Diverged('refine', reason, shift, math.degrees(angle))
         # Targets are numbered frame by frame, so every k-th number thins each frame evenly
         # and picks the same targets again when the gate barely changes.
         stride = max(1, index.size // _ROUND_TARGETS)
@@ -1491,7 +1558,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     pb = uncertainty.pass_jackknife_covariance(j * w[:, None], r * w, row_band, jp.T @ jp,
                                                prior_term=False)
     halves_shift = _halves_shift(pc, jp.T @ jp)
-    start_term = _start_term(pc, jp.T @ jp, config)
+    start_term = _start_term(pc, jp.T @ jp, config, start_sigma_m)
     covariance = uncertainty.shrink_correlations(uncertainty.combined_covariance(pc, pb),
                                                  pc.n_passes) + start_term
     cov7 = uncertainty.add_along_boresight(_pose_block(covariance, estimate_tau), est.rotation,
@@ -1608,9 +1675,10 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             f'The radial velocities show about {azimuth_noise:.1f} deg of azimuth noise '
             f'(refine.azimuth_sigma_deg is {cfg.azimuth_sigma_deg:g}); the fit used it. At '
             'that noise the lines of sight the radial velocities are predicted along are '
-            'noisy too, which biases the position along the boresight, forward, by '
-            'decimetres (measured on an independent generator: 0.3-0.7 m at 2 deg, '
-            '0.1-0.3 m at 1 deg, within the reported uncertainty about as often as not). '
+            'noisy too, which biases the position along the boresight by decimetres '
+            '(measured on independent generators: 0.3-0.7 m forward at 2 deg and 0.1-0.3 m '
+            'at 1 deg on one, 0.2-0.5 m back at 1.5-2 deg on another, within the reported '
+            'uncertainty about as often as not). '
             'Set refine.azimuth_sigma_deg to what the radar\'s datasheet says; where it is '
             'this noisy, trust the position along the boresight less than its sigma says.',
             *diagnostics['advice']]
@@ -1913,6 +1981,16 @@ _MAX_TURN_DEG = 10.0
 _VELOCITY_SUSPECTS = "folded at the radar's unambiguous limit, or a scale or sign error?"
 
 
+class _Diverged(InsufficientDataError):
+    """The fit ran ``shift_m`` and ``turn_deg`` from the paper's estimate
+    (``_check_not_diverged``)."""
+
+    def __init__(self, stage: str, message: str, shift_m: float, turn_deg: float) -> None:
+        super().__init__(stage, message)
+        self.shift_m = shift_m
+        self.turn_deg = turn_deg
+
+
 def _check_not_diverged(start: Extrinsics, est: Extrinsics, planar: bool = False) -> None:
     """Raise when the fit ran beyond ``_MAX_SHIFT_M`` / ``_MAX_TURN_DEG`` from the paper's
     stages; horizontally only for a 2-D radar (``planar``), whose altitude starts at the
@@ -1921,11 +1999,11 @@ def _check_not_diverged(start: Extrinsics, est: Extrinsics, planar: bool = False
     if planar:
         shift = float(np.hypot(*(est.translation_m[:2] - start.translation_m[:2])))
     if shift > _MAX_SHIFT_M or math.degrees(angle) > _MAX_TURN_DEG:
-        raise InsufficientDataError(
+        raise _Diverged(
             'refine', f'the final refinement ran {shift:.1f} m and {math.degrees(angle):.1f} '
             'deg away from the paper\'s stages\' estimate (decimetres and about a degree '
             'off): it follows something other than the vehicle, most likely radial '
-            f'velocities off its motion ({_VELOCITY_SUSPECTS})')
+            f'velocities off its motion ({_VELOCITY_SUSPECTS})', shift, math.degrees(angle))
 
 
 def _halves_disagreement(shift: F64 | None, cov7: F64) -> tuple[float, float] | None:
@@ -2066,7 +2144,7 @@ _START_ERROR_LENGTHS = 1.0
 
 
 def _start_term(passes: uncertainty.PassCovariance, prior_hessian: F64,
-                config: CalibConfig) -> F64:
+                config: CalibConfig, start_sigma_m: float = _START_SIGMA_M) -> F64:
     """Covariance the start's own error adds where the data leave the horizontal position
     to the half-metre prior around the paper's estimate (``_START_SIGMA_M``).
 
@@ -2080,7 +2158,7 @@ def _start_term(passes: uncertainty.PassCovariance, prior_hessian: F64,
     prior's term H^-1 P H^-1 by their squared ratio, in the horizontal position only. Where
     the data measure the position (junctions, turns) it adds nothing.
     """
-    scale2 = (_START_ERROR_LENGTHS * config.vehicle.length / _START_SIGMA_M) ** 2
+    scale2 = (_START_ERROR_LENGTHS * config.vehicle.length / start_sigma_m) ** 2
     p_xy = np.zeros_like(prior_hessian)
     p_xy[3:5, 3:5] = prior_hessian[3:5, 3:5]
     term: F64 = max(scale2 - 1.0, 0.0) * uncertainty.prior_part_covariance(
@@ -2208,7 +2286,8 @@ def reflection_height_prior(config: CalibConfig) -> tuple[float, float]:
 _HELD_STEP_M = 1e-6
 
 
-def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F64, F64]:
+def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool,
+            start_sigma_m: float = _START_SIGMA_M) -> tuple[F64, F64]:
     """Prior means (NaN = none) and sigmas of all parameters (see the module docstring)."""
     veh = config.vehicle
     i_prof = 7 if estimate_tau else 6
@@ -2224,7 +2303,7 @@ def _priors(config: CalibConfig, harmonics: int, estimate_tau: bool) -> tuple[F6
     # and tail-on), a half-metre prior around that start keeps the fit from wandering off
     # on model mismatch; elsewhere the data outweigh it a hundred-fold. It enters the
     # covariance, so there the reported uncertainty is the half metre it really is.
-    mean[3:6], sigma[3:6] = 0.0, _START_SIGMA_M
+    mean[3:6], sigma[3:6] = 0.0, start_sigma_m
     sigma[5] = _ALTITUDE_START_SIGMA_M
     x0, x1, _, _ = box_limits(veh)
     idx = reflection.coefficient_index(harmonics)

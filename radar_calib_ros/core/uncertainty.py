@@ -449,6 +449,15 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
             'all cross it, where each side of the vehicle is seen at one bearing per lane; '
             'then calibrate again.')
         return sentences
+    if any(abs(math.sin(h - across)) < math.sin(_CROSSING_RAD) for h in headings_rad):
+        # some passes cross the view already: more of the same at that range adds little
+        # (a twenty-second probe crossed 4 and 8 times and was told to cross again)
+        sentences.append(
+            f'Better still, where the roads allow, turn through the view about '
+            f'{near:.0f}-{near + 20.0:.0f} m from the radar, or cross it at another range '
+            'than before, so the front and rear are seen from other bearings; then calibrate '
+            'again.')
+        return sentences
     sentences.append(
         f'Better still, where the roads allow, {crossing}, so the front and rear are seen '
         'from bearings far from the boresight; then calibrate again.')

@@ -788,6 +788,41 @@ def test_a_direction_driven_on_the_other_carriageway_counts_as_driven(
     assert any(not c.driven for c in seen['candidates'])
 
 
+def test_a_fit_running_off_along_the_boresight_is_held_where_every_drive_runs_along_it(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every drive heads towards or away from the radar: a fit that runs off (here the
+    first check says so) is run again with the horizontal position held at the start, said,
+    and reported a car length uncertain along the boresight. Across a junction the same
+    run-off is refused as before."""
+    check, along_boresight = refine._check_not_diverged, refine._drives_along_boresight
+    asked: list[bool] = []
+
+    def runs_off_until_asked(start: Extrinsics, est: Extrinsics, planar: bool = False) -> None:
+        if not asked:
+            raise refine._Diverged('refine', 'the final refinement ran 7.0 m', 7.0, 1.0)
+        check(start, est, planar)
+
+    def asking(*args: Any) -> bool:
+        asked.append(along_boresight(*args))
+        return asked[-1]
+
+    monkeypatch.setattr(refine, '_check_not_diverged', runs_off_until_asked)
+    monkeypatch.setattr(refine, '_drives_along_boresight', asking)
+    head_on = make_scene(5, model='interior', geometry='head_on')
+    held = _run(head_on)
+    assert asked == [True]
+    boresight = head_on.initial.rotation[:2, 0] / np.linalg.norm(head_on.initial.rotation[:2, 0])
+    along = (held.extrinsics.translation_m - head_on.initial.translation_m)[:2] @ boresight
+    assert abs(along) < 0.05
+    assert held.diagnostics['advice'][0].startswith('Every drive ran towards or away')
+    assert 'ran 7.0 m (and 1.0 deg) off' in held.diagnostics['advice'][0]
+    assert held.diagnostics['sigma_along_boresight_m'] > 0.5 * head_on.config.vehicle.length
+    asked.clear()
+    with pytest.raises(InsufficientDataError, match='ran 7.0 m'):
+        _run(make_scene(5, model='interior', geometry='junction'))
+    assert asked == [False]
+
+
 def test_the_cross_the_view_range_starts_beyond_a_blind_zone() -> None:
     coverage = uncertainty.view_coverage(np.zeros(10), np.zeros(10), np.ones(10))
     text = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], 0.0, nearest_m=27.0))
@@ -799,7 +834,7 @@ def test_the_cross_the_view_range_starts_beyond_a_blind_zone() -> None:
 def test_a_side_fire_radar_is_not_told_to_cross_its_view_again() -> None:
     """Boresight north (ENU pi/2), every pass eastbound or westbound: they all cross the
     view already, so the advice asks for a turn or a road towards the radar instead; with
-    one pass along the boresight, crossing is still advised."""
+    one pass along the boresight too, a turn or a crossing at another range."""
     coverage = uncertainty.view_coverage(np.zeros(10), np.zeros(10), np.ones(10))
     bore = math.pi / 2.0
     crossing = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], bore,
@@ -808,7 +843,7 @@ def test_a_side_fire_radar_is_not_told_to_cross_its_view_again() -> None:
     assert 'turn through the view' in crossing and 'heading north or south' in crossing
     mixed = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], bore,
                                               headings_rad=[0.0, math.pi / 2.0]))
-    assert 'cross the view (heading west or east)' in mixed
+    assert 'turn through the view' in mixed and 'cross it at another range' in mixed
 
 
 def test_passes_along_the_boresight_are_told_to_cross_the_view_first() -> None:
@@ -826,7 +861,11 @@ def test_passes_along_the_boresight_are_told_to_cross_the_view_first() -> None:
     mixed = uncertainty.drive_advice(0.5, 0.05, coverage, [lane], 0.0,
                                      headings_rad=[0.0, math.pi / 2.0])
     assert mixed[1].startswith('Drive westbound')
-    assert mixed[2].startswith('Better still, where the roads allow, cross the view')
+    assert mixed[2].startswith('Better still, where the roads allow, turn through the view')
+    assert 'or cross it at another range' in mixed[2]
+    oblique = uncertainty.drive_advice(0.5, 0.05, coverage, [lane], 0.0,
+                                       headings_rad=[0.0, math.pi / 4.0])
+    assert oblique[2].startswith('Better still, where the roads allow, cross the view')
 
 
 def test_halves_that_disagree_beyond_the_covariance_are_flagged() -> None:
