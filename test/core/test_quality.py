@@ -280,3 +280,19 @@ def test_one_direction_is_named_as_a_compass_heading() -> None:
              'rotation_deg': 0.2}
     advice = quality._advice(6, [95.0] * 6, sigma, 0.7, 0.3, False, CalibConfig())
     assert any('one direction (east, heading 95 deg from north)' in a for a in advice)
+
+
+def test_a_box_misfit_names_the_open_position_along_the_boresight_too() -> None:
+    """Targets far outside the box: vehicle.* and the clock are named; where the drives
+    leave the position along the boresight open (a car length), the misplaced radar too."""
+    config = CalibConfig()
+    sigma = {'along': 0.1, 'across': 0.05}
+    tight = quality._advice(8, [0.0, 180.0, 90.0], sigma, 0.1, 1.2, False, config)
+    misfit = [a for a in tight if 'outside its box' in a]
+    assert len(misfit) == 1 and 'vehicle.length' in misfit[0]
+    assert 'leave open' not in misfit[0]
+    open_along = quality._advice(8, [0.0, 180.0, 90.0], {**sigma, 'along': 4.4}, 0.1, 1.2,
+                                 False, config)
+    named = [a for a in open_along if 'outside its box' in a][0]
+    assert 'which the drives leave open (4.4 m, 1 sigma)' in named
+    assert 'vehicle.* may be right' in named
