@@ -17,7 +17,7 @@ import numpy as np
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import associate, cluster, ground_plane, hypotheses, moving, polygon
-from radar_calib_ros.core import quality, refine, track, velocity_folding
+from radar_calib_ros.core import quality, refine, track, uncertainty, velocity_folding
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.io.geo import zone_note
 from radar_calib_ros.recording import Recording, interpolate_poses
@@ -1062,11 +1062,6 @@ def _mirrored_axis(recording: Recording, config: CalibConfig) -> str | None:
     return 'z' if abs(math.atan2(rot[2, 1], rot[2, 2])) > math.pi / 2 else 'y'
 
 
-#: The final fit's position along the boresight is taken as left to its start from this
-#: 1-sigma [m] (twice the half-metre prior around the start).
-_OPEN_ALONG_M = 1.0
-
-
 def _run_calibration(recording: Recording, config: CalibConfig,
                      progress: ProgressFn | None) -> CalibrationResult:
     stage = _StageClock(progress)
@@ -1176,7 +1171,7 @@ def _run_calibration(recording: Recording, config: CalibConfig,
             refinement = refine.refine_extrinsics(current, recording, tracked, selection,
                                                   config, ground_normal=ground.normal)
             if (closest is not None and refinement.diagnostics['sigma_along_boresight_m']
-                    >= _OPEN_ALONG_M):
+                    >= uncertainty.OPEN_ALONG_BORESIGHT_M):
                 # The drives leave the position along the boresight to where the fit
                 # started (``polygon.bracketed_start``): start where that is least wrong.
                 with suppress(InsufficientDataError):

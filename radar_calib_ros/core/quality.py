@@ -53,8 +53,6 @@ _BOX_MISFIT_INSIDE = 0.5
 #: with at most 40 % inside stay at or below 0.35 m (one at 1.29, named already).
 _BOX_MISFIT_NOTE_M = 0.6
 _BOX_MISFIT_NOTE_INSIDE = 0.4
-#: 1-sigma along the boresight [m] from which the box misfit may be the radar's position.
-_OPEN_ALONG_M = 1.0
 #: A drive through the view that gave the final fit fewer targets than this was not used
 #: (the refinement's own floor for a pass).
 _USED_DRIVE_TARGETS = 20
@@ -368,7 +366,8 @@ def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
         open_along = (f' Or the radar\'s position along the boresight, which the drives '
                       f'leave open ({along:.1f} m, 1 sigma), is off by about that much: '
                       'then vehicle.* may be right.'
-                      if math.isfinite(along) and along > _OPEN_ALONG_M else '')
+                      if math.isfinite(along) and along > uncertainty.OPEN_ALONG_BORESIGHT_M
+                      else '')
         advice.append(f'The vehicle targets outside its box lie {misfit_m:.1f} m from it on '
                       f'average ({100 * inlier_ratio:.0f} % inside; 0.2-0.4 m where '
                       'vehicle.* describe the vehicle): check vehicle.length, width and '

@@ -329,6 +329,16 @@ class ClockDrift:
         return change
 
 
+def _vehicle_poses(recording: Recording, index: I64, config: CalibConfig,
+                   drift: ClockDrift | None = None) -> tuple[_Poses, _Times]:
+    """The vehicle's pose stream (time from its first pose) and the times of the targets
+    ``index`` on it."""
+    t0_ns = int(recording.vehicle.stamps_ns[0])
+    poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap,
+                              recording.fix_sigma_m)
+    return poses, _Times.of(recording, index, config.sync.time_offset, t0_ns, drift)
+
+
 # --- the model --------------------------------------------------------------------------
 
 @dataclass(frozen=True, slots=True)
@@ -1135,31 +1145,26 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
 #: Width of the prior that holds the horizontal position at the paper's estimate where
 #: every drive runs along the boresight and the fit ran off along it [m].
 _HELD_START_SIGMA_M = 0.05
-#: A drive runs along the boresight within this angle of it (either way) [rad], and the
-#: drives all do when this share of the accepted tracks' targets are seen so.
-_ALONG_BORESIGHT_RAD = math.radians(25.0)
+#: The drives all run along the boresight (``uncertainty.near_axis``) when this share of
+#: the accepted tracks' targets are seen so.
 _ALONG_BORESIGHT_SHARE = 0.9
 
 
 def _drives_along_boresight(est: Extrinsics, recording: Recording, tracked: TrackedTargets,
                             selection: HypothesisSelection, config: CalibConfig) -> bool:
-    """Whether the vehicle heads towards or away from the radar (within
-    ``_ALONG_BORESIGHT_RAD`` of its boresight) wherever the accepted tracks see it."""
+    """Whether the vehicle heads towards or away from the radar (``uncertainty.near_axis``
+    of its boresight) wherever the accepted tracks see it."""
     index = np.asarray(tracked.target_index, np.int64)[np.isin(
         tracked.track_id, np.asarray(selection.accepted_track_ids, np.int64))]
     if index.size == 0:
         return False
-    t0_ns = int(recording.vehicle.stamps_ns[0])
-    poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap,
-                              recording.fix_sigma_m)
-    times = _Times.of(recording, index, config.sync.time_offset, t0_ns, None)
+    poses, times = _vehicle_poses(recording, index, config)
     valid = times.valid(poses, est.time_offset_s)
     if not valid.any():
         return False
     _, yaw, _, _, _ = times.poses(poses, est.time_offset_s)
     boresight = math.atan2(est.rotation[1, 0], est.rotation[0, 0])
-    along = np.abs(np.sin(yaw[valid] - boresight)) < math.sin(_ALONG_BORESIGHT_RAD)
-    return float(np.mean(along)) >= _ALONG_BORESIGHT_SHARE
+    return float(np.mean(uncertainty.near_axis(yaw[valid], boresight))) >= _ALONG_BORESIGHT_SHARE
 
 
 #: Shifts along the boresight are searched for left-out drives only where the fit leaves the
@@ -1197,13 +1202,10 @@ def _rescan_along_boresight(refinement: Refinement, recording: Recording,
     if half < _RESCAN_MIN_HALF_WIDTH_M or norm < 1e-6:
         return None
     boresight /= norm
-    t0_ns = int(recording.vehicle.stamps_ns[0])
-    poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap,
-                              recording.fix_sigma_m)
     candidates = np.asarray(tracked.target_index, np.int64)
     track_ids = np.asarray(tracked.track_id, np.int64)
     track_size = _track_sizes(track_ids)
-    times = _Times.of(recording, candidates, config.sync.time_offset, t0_ns, None)
+    poses, times = _vehicle_poses(recording, candidates, config)
     fitted = np.asarray(refinement.diagnostics['residuals']['target_index'], np.int64)
     fitted_t = np.sort(times.t_s[np.isin(candidates, fitted)])
     if fitted_t.size == 0:
@@ -1347,13 +1349,10 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             tilt_prior_deg: float | None = None,
             start_sigma_m: float = _START_SIGMA_M) -> Refinement:
     cfg = config.refine
-    t0_ns = int(recording.vehicle.stamps_ns[0])
-    poses = _Poses.from_track(recording.vehicle, t0_ns, config.sync.max_pose_gap,
-                              recording.fix_sigma_m)
     candidates = np.asarray(tracked.target_index, np.int64)
     track_ids = np.asarray(tracked.track_id, np.int64)
     accepted = np.asarray(selection.accepted_track_ids, np.int64)
-    times = _Times.of(recording, candidates, config.sync.time_offset, t0_ns, drift)
+    poses, times = _vehicle_poses(recording, candidates, config, drift)
     estimate_tau = bool(config.sync.estimate_time_offset) and config.sync.max_time_offset > 0
     est = Extrinsics(np.asarray(initial.rotation, float),
                      np.asarray(initial.translation_m, float), float(initial.time_offset_s))

@@ -411,8 +411,8 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     crossing = (f'cross the view (heading {compass_name(across)} or '
                 f'{compass_name(across + math.pi)}) or turn through it about '
                 f'{near:.0f}-{near + 20.0:.0f} m from the radar')
-    along_road = bool(headings_rad) and all(
-        abs(math.sin(h - boresight_rad)) < math.sin(_CROSSING_RAD) for h in headings_rad)
+    headings = np.asarray(headings_rad, float)
+    along_road = headings.size > 0 and bool(near_axis(headings, boresight_rad).all())
     if along_road:
         # Every pass runs towards or away from the radar (a radar mid-block looking down
         # its road): only the front and rear are seen, and from another lane at bearings a
@@ -436,8 +436,8 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
             f'deg {side} of its boresight: it shows sides already seen from new bearings.')
     if along_road:
         return sentences
-    if headings_rad and all(abs(math.sin(h - across)) < math.sin(_CROSSING_RAD)
-                            for h in headings_rad):
+    crossing_passes = near_axis(headings, across)
+    if headings.size > 0 and crossing_passes.all():
         # a side-fire radar's passes already cross its view: on a straight road each side
         # is seen at one bearing per lane, and only another road's angle adds bearings (an
         # eleventh probe was told to cross the view, as every pass had)
@@ -449,7 +449,7 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
             'all cross it, where each side of the vehicle is seen at one bearing per lane; '
             'then calibrate again.')
         return sentences
-    if any(abs(math.sin(h - across)) < math.sin(_CROSSING_RAD) for h in headings_rad):
+    if crossing_passes.any():
         # some passes cross the view already: more of the same at that range adds little
         # (a twenty-second probe crossed 4 and 8 times and was told to cross again)
         sentences.append(
@@ -464,8 +464,19 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     return sentences
 
 
-#: A pass heading within this angle of square to the boresight crosses the view [rad].
-_CROSSING_RAD = math.radians(25.0)
+#: A heading within this angle of an axis (either way) runs along it [rad]: across the
+#: boresight, a pass crosses the view; along it, the pass runs towards or away from the radar.
+_NEAR_AXIS_RAD = math.radians(25.0)
+#: 1-sigma along the boresight [m] from which the drives leave the position there open to
+#: where the fit started (a car length's worth of the paper's estimate).
+OPEN_ALONG_BORESIGHT_M = 1.0
+
+
+def near_axis(headings_rad: F64, axis_rad: float) -> np.ndarray:
+    """(n,) True for the headings (ENU, rad) within ``_NEAR_AXIS_RAD`` of the axis
+    ``axis_rad``, in either direction along it."""
+    return np.abs(np.sin(np.asarray(headings_rad, float) - axis_rad)) < math.sin(
+        _NEAR_AXIS_RAD)
 
 
 def _join(names: list[str]) -> str:
