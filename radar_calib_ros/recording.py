@@ -2170,6 +2170,8 @@ _SCALE_STRAIGHT_RPS = 0.05
 _SCALE_STRETCH_S = 5.0
 _SCALE_DISTANCE_M = 100.0
 _SCALE_MIN = 0.003
+#: A gap between fixes this long ends a straight stretch [s] (fixes come at 1-50 Hz).
+_SCALE_GAP_S = 2.5
 
 
 def _speed_scale(t: F64, positions: F64, twist_world: F64, moving: np.ndarray,
@@ -2190,9 +2192,15 @@ def _speed_scale(t: F64, positions: F64, twist_world: F64, moving: np.ndarray,
     """
     speed_twist = np.hypot(twist_world[:, 0], twist_world[:, 1])
     use = moving & (np.abs(yaw_rate) < _SCALE_STRAIGHT_RPS) & (speed_twist > 0.5)
-    edges = np.diff(np.concatenate([[0], use.astype(np.int8), [0]]))
+    # A stretch ends where the fixes stop: across an outage the vehicle drove on unseen
+    # (turned, looped) and the chord from the last fix to the next says nothing of its
+    # path; a twenty-third probe's 4-8 s outages between passes read an exact twist as
+    # 11-16 % off, 'rescaled' it, and failed the calibration.
+    after_gap = np.concatenate([[True], np.diff(t) > _SCALE_GAP_S])
+    start = use & (after_gap | ~np.concatenate([[False], use[:-1]]))
+    end = use & np.concatenate([start[1:] | ~use[1:], [True]])
     paths, integrals = [], []
-    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1):
+    for a, b in zip(np.flatnonzero(start), np.flatnonzero(end)):
         if t[b] - t[a] < _SCALE_STRETCH_S:
             continue
         idx = np.unique(np.concatenate([np.searchsorted(t, np.arange(t[a], t[b], 1.0)),

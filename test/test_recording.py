@@ -1619,3 +1619,37 @@ def test_buffered_targets_are_float32_where_that_loses_nothing() -> None:
                                   single)
     np.testing.assert_array_equal(rec.targets.positions_m[rec.targets.frame_index == 2],
                                   double)
+
+
+def test_fix_outages_do_not_read_as_an_odometry_speed_error() -> None:
+    """GNSS (fixes and Odometry) out for 6 s between straight drives while the vehicle
+    turned unseen: each drive resumes on another heading, 20 m from where the last one
+    ended, not the 48 m it drove. The chord across an outage is not the path; the exact
+    twist is left as it is."""
+    frame = LocalFrame.at(LAT0, LON0)
+    t_all, xy_all, yaw_all = [], [], []
+    here = np.zeros(2)
+    for k in range(8):
+        heading = math.radians(30.0 + 90.0 * k)
+        direction = np.array([math.cos(heading), math.sin(heading)])
+        t = 36.0 * k + np.arange(0.0, 30.0, 0.02)
+        xy = here + (8.0 * (t - t[0]))[:, None] * direction
+        here = xy[-1] + 20.0 * np.array([math.cos(heading + 0.8), math.sin(heading + 0.8)])
+        t_all.append(t)
+        xy_all.append(xy)
+        yaw_all.append(np.full(t.size, heading))
+    t, xy, yaw = np.concatenate(t_all), np.concatenate(xy_all), np.concatenate(yaw_all)
+    rng = np.random.default_rng(5)
+    local = np.column_stack([xy + rng.normal(0.0, 0.02, xy.shape), np.zeros(t.size)])
+    lat, lon, alt = frame.local_to_geodetic(local)
+    convergence = float(frame.local_convergence_rad(lat[:1], lon[:1])[0])
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i in range(t.size):
+        stamp = T0 + int(round(t[i] * 1e9))
+        builder.add_fix(FixSample(stamp, lat[i], lon[i], alt[i], 2))
+        builder.add_odometry(_odom(stamp, yaw[i] + convergence, 8.0))
+    rec = builder.build()
+    assert 'odometry_speed_scale_permille' not in rec.counters
+    measured = np.hypot(*rec.vehicle.velocities_mps[:, :2].T)
+    assert np.median(np.abs(measured / 8.0 - 1.0)) < 0.002
