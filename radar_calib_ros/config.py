@@ -201,9 +201,10 @@ class RefineConfig:
         True, 'the reflection profile switches between front and rear, and between the '
         'sides, as a step where the near face changes (false: Fourier terms only)')
     profile_range_terms: str = _p(
-        'depth', 'how the reflection profile may change with range: only its depth along the '
-        "line of sight ('depth') or every horizontal coefficient ('full')",
-        choices=('depth', 'full'))
+        'perspective', 'how the reflection profile may change with range: its depth along '
+        "the line of sight linearly, plus its low orders as 1 / range ('perspective'), the "
+        "depth only ('depth'), or its low orders linearly ('full')",
+        choices=('perspective', 'depth', 'full'))
     max_iterations: int = _p(5, 'gate / re-fit rounds of the final refinement', lo=1, hi=50)
     range_sigma_m: float = _p(0.15, 'radar range noise (1 sigma) [m]', lo=1e-4, hi=10.0)
     azimuth_sigma_deg: float = _p(0.3, 'radar azimuth noise (1 sigma) [deg]', lo=1e-4, hi=20.0)
@@ -217,8 +218,9 @@ class RefineConfig:
         0.2, 'uncertainty of refine.reflection_height_m (scaled with it) [m]', lo=1e-3,
         hi=5.0)
     model_check: bool = _p(
-        True, "refit with the other refine.profile_range_terms and add the two positions' "
-        "difference to the reported covariance (at most the fit's own variance along it)")
+        True, "refit with refine.profile_range_terms 'depth' (or 'full' where that is the one "
+        "chosen) and add the two positions' difference to the reported covariance (at most "
+        "the fit's own variance along it)")
     model_sigma_tilt_deg: float = _p(
         0.1, 'systematic 1-sigma of the reflection model in roll and pitch (rotation about the '
         'horizontal world axes), added to the reported uncertainty [deg]', lo=0.0, hi=10.0)

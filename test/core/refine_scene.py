@@ -144,13 +144,16 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
                initial_error: tuple[float, float, float] = (0.3, 1.0, 0.0),
                crawl: bool = False, config: CalibConfig | None = None,
                grade: float = 0.0, steady: bool = False,
-               azimuth_noise_deg: float = 0.3, elevation_noise_deg: float = 1.5) -> Scene:
+               azimuth_noise_deg: float = 0.3, elevation_noise_deg: float = 1.5,
+               perspective_m: float = 0.0) -> Scene:
     """Build a scene; ``initial_error`` = (translation [m], yaw [deg], clock offset [s]);
     ``grade``: the road climbs this much per metre along the boresight, and the car is
     pitched with it (the fixes then declare RTK's 2-3 cm, which the grade is measured by);
     ``steady``: every pass at one constant speed (11 m/s), as on a road without lights;
     ``azimuth_noise_deg``, ``elevation_noise_deg``: the radar's angle noise (1 sigma)
-    when ``noise``."""
+    when ``noise``; ``perspective_m``: the targets' mean moves along the car and across it
+    by this much times (20 m / range of the centre), more at oblique aspects (what a car
+    spanning more of the view shows nearer the radar)."""
     rng = np.random.default_rng(seed)
     cfg = config or CalibConfig()
     truth = radar_truth()
@@ -222,6 +225,10 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
                                                     np.zeros(tgt_frame.size)])
     aspect = reflection.aspect_angles(centre - truth.translation_m, fy[tgt_frame])
     local, wheel, delay = _vehicle_targets(rng, model, aspect, cfg.vehicle, profile)
+    if perspective_m:
+        near = 20.0 / np.hypot(*(centre - truth.translation_m)[:, :2].T)
+        local[:, 0] += perspective_m * np.sin(aspect) ** 2 * near
+        local[:, 1] += perspective_m * np.sin(2.0 * aspect) * near
     # pitched with the road: a point ahead of the reference point sits higher uphill
     local[:, 2] += grade * np.cos(fy[tgt_frame] - yaw_r) * local[:, 0]
     c, s = np.cos(fy[tgt_frame]), np.sin(fy[tgt_frame])

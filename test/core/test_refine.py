@@ -92,7 +92,7 @@ def test_aspect_angle_convention() -> None:
 
 # --- the model ----------------------------------------------------------------------------
 
-@pytest.mark.parametrize('range_terms', ['depth', 'full'])
+@pytest.mark.parametrize('range_terms', ['perspective', 'depth', 'full'])
 def test_analytic_jacobian_matches_finite_differences(range_terms: str) -> None:
     # on a grade, so that the pitched car's heights are part of the model checked
     scene = make_scene(3, model='interior', n_passes=4, grade=0.04)
@@ -114,8 +114,8 @@ def test_analytic_jacobian_matches_finite_differences(range_terms: str) -> None:
     model = refine._Model(data, poses, scene.truth.rotation, scene.truth.translation_m, None,
                           2, 0.15, mean, sigma, 1.45, range_terms, azimuth_scale=True)
     # the profile, its range slopes and the radar's azimuth scale
-    assert model.n_par == 7 + reflection.n_coefficients(2) + (5 if range_terms == 'full'
-                                                              else 1) + 1
+    n_range = {'perspective': 6, 'depth': 1, 'full': 5}[range_terms]
+    assert model.n_par == 7 + reflection.n_coefficients(2) + n_range + 1
     assert mean.size == sigma.size == model.n_par and sigma[-1] == 0.02
     fov = scene.recording.radar_view().elevation_rad
     assert -np.pi / 2 < fov[0] < fov[1] < np.pi / 2
@@ -206,6 +206,25 @@ def test_recovers_the_truth_from_a_perturbed_start_on_exact_data() -> None:
     np.testing.assert_allclose(ref.reflection_profile[:-1], expected[:-1], atol=1e-3)
     assert ref.n_passes == 8
     assert ref.covariance.shape == (7, 7)
+
+
+@pytest.mark.parametrize('range_terms, within_m', [('perspective', 0.005), ('depth', None)])
+def test_the_perspective_terms_follow_a_profile_that_changes_as_one_over_range(
+        range_terms: str, within_m: float | None) -> None:
+    """What a car shows moves along it as it comes nearer (it spans more of the view, and
+    its nearer, squarer parts show more): exact targets whose mean moves by 0.3 m x 20 m /
+    range. The default range law follows it; the depth-only law put the radar centimetres
+    off."""
+    base = _exact()
+    cfg = dataclasses.replace(base, refine=dataclasses.replace(
+        base.refine, profile_range_terms=range_terms))
+    scene = make_scene(1, model='profile', profile=_PROFILE, noise=False, config=cfg,
+                       initial_error=(0.3, 1.0, 0.0), perspective_m=0.3)
+    err = errors(_run(scene).extrinsics, scene.truth)
+    if within_m is not None:
+        assert err['horizontal'] < within_m and err['rotation'] < 1e-3, err
+    else:
+        assert err['horizontal'] > 0.03, err
 
 
 @pytest.mark.parametrize('model', ['interior', 'skin'])
