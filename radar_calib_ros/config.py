@@ -215,7 +215,7 @@ class RefineConfig:
         'below the road included, for a car 1.5 m tall (scaled with vehicle.height) [m]',
         lo=-2.0, hi=5.0)
     reflection_height_sigma_m: float = _p(
-        0.2, 'uncertainty of refine.reflection_height_m (scaled with it) [m]', lo=1e-3,
+        0.3, 'uncertainty of refine.reflection_height_m (scaled with it) [m]', lo=1e-3,
         hi=5.0)
     model_check: bool = _p(
         True, "refit with refine.profile_range_terms 'depth' (or 'full' where that is the one "
