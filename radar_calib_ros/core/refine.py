@@ -2597,6 +2597,10 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
     }
 
 
+#: Largest yaw rate of a pose that shows a lane to drive again [rad/s].
+_LANE_MAX_YAW_RATE_RPS = 0.2
+
+
 def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
                       g: dict[str, F64], data: _Selected, coverage: uncertainty.ViewCoverage,
                       bore: float, nearest_m: float) -> list[uncertainty.DriveCandidate]:
@@ -2622,6 +2626,13 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     # far enough to see the whole car
     inside = ((p_rng <= min(r_max, 60.0)) & (p_rng >= max(10.0, nearest_m))
               & (p_bear >= b_lo - 0.1) & (p_bear <= b_hi + 0.1))
+    # A heading met mid-turn is no lane's: a junction's turns pass through every diagonal,
+    # and a twenty-fourth probe with only east-west and north-south roads was asked to drive
+    # 'south-westbound ... on a lane already driven'. Lanes are where the vehicle drove
+    # straight (or round a bend: 0.2 rad/s is a 50 m radius at 10 m/s).
+    straight = np.abs(recording.vehicle.yaw_rate_rps) < _LANE_MAX_YAW_RATE_RPS
+    if (inside & straight).any():
+        inside &= straight
     if not inside.any():
         return []
     # thin to about one sample per 5 m of road per direction

@@ -786,6 +786,28 @@ def test_advised_drives_are_never_nearer_than_the_vehicle_was_seen(
     assert f'about {near}-{near + 20} m from the radar' in ' '.join(ref.diagnostics['advice'])
 
 
+def test_advised_lanes_are_headed_as_the_roads_not_as_the_turns(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A junction of two roads at right angles, with a turn: the drives advised run along
+    its roads, not at the diagonal headings met mid-turn (a twenty-fourth probe was asked
+    to drive 'south-westbound' where only east-west and north-south roads meet)."""
+    seen: dict[str, list[uncertainty.DriveCandidate]] = {}
+    original = refine._drive_candidates
+
+    def spy(*args):  # type: ignore[no-untyped-def]
+        seen['candidates'] = original(*args)
+        return seen['candidates']
+
+    monkeypatch.setattr(refine, '_drive_candidates', spy)
+    scene = make_scene(4, model='interior', geometry='junction')
+    _run(scene)
+    assert seen['candidates']
+    yaw_r = math.atan2(scene.truth.rotation[1, 0], scene.truth.rotation[0, 0])
+    for cand in seen['candidates']:
+        off_road = (cand.heading_rad - yaw_r) % (math.pi / 2)
+        assert min(off_road, math.pi / 2 - off_road) < math.radians(10.0), cand
+
+
 def test_a_direction_driven_on_the_other_carriageway_counts_as_driven(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Seen head-on and tail-on on a road driven both ways (lanes 3-7 m apart): a drive
