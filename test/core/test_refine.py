@@ -764,11 +764,10 @@ def test_a_final_fit_of_every_second_target_reports_the_same_uncertainty(
     assert moved < full.diagnostics['sigma_horizontal_m'], moved
 
 
-def test_advised_drives_are_never_nearer_than_the_vehicle_was_seen(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """Below the nearest range the vehicle was seen at, it is under the radar's vertical
-    view: no drive is advised there, and the 'cross the view' range starts beyond it."""
-    seen: dict[str, object] = {}
+def _record_candidates(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    """The drive candidates (and the nearest range the vehicle was seen at) of the last
+    ``refine._drive_candidates`` call, kept in the returned dict."""
+    seen: dict[str, Any] = {}
     original = refine._drive_candidates
 
     def spy(*args):  # type: ignore[no-untyped-def]
@@ -777,10 +776,18 @@ def test_advised_drives_are_never_nearer_than_the_vehicle_was_seen(
         return seen['candidates']
 
     monkeypatch.setattr(refine, '_drive_candidates', spy)
+    return seen
+
+
+def test_advised_drives_are_never_nearer_than_the_vehicle_was_seen(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Below the nearest range the vehicle was seen at, it is under the radar's vertical
+    view: no drive is advised there, and the 'cross the view' range starts beyond it."""
+    seen = _record_candidates(monkeypatch)
     ref = _run(make_scene(5, model='interior', geometry='head_on'))
-    nearest = float(seen['nearest'])  # type: ignore[arg-type]
+    nearest = float(seen['nearest'])
     assert nearest > 10.0
-    candidates: list[uncertainty.DriveCandidate] = seen['candidates']  # type: ignore[assignment]
+    candidates: list[uncertainty.DriveCandidate] = seen['candidates']
     assert candidates and all(c.range_m >= nearest for c in candidates)
     near = max(20, 5 * math.ceil(nearest / 5.0))
     assert f'about {near}-{near + 20} m from the radar' in ' '.join(ref.diagnostics['advice'])
@@ -791,14 +798,7 @@ def test_advised_lanes_are_headed_as_the_roads_not_as_the_turns(
     """A junction of two roads at right angles, with a turn: the drives advised run along
     its roads, not at the diagonal headings met mid-turn (a twenty-fourth probe was asked
     to drive 'south-westbound' where only east-west and north-south roads meet)."""
-    seen: dict[str, list[uncertainty.DriveCandidate]] = {}
-    original = refine._drive_candidates
-
-    def spy(*args):  # type: ignore[no-untyped-def]
-        seen['candidates'] = original(*args)
-        return seen['candidates']
-
-    monkeypatch.setattr(refine, '_drive_candidates', spy)
+    seen = _record_candidates(monkeypatch)
     scene = make_scene(4, model='interior', geometry='junction')
     _run(scene)
     assert seen['candidates']
@@ -814,14 +814,7 @@ def test_a_direction_driven_on_the_other_carriageway_counts_as_driven(
     the other way is on a lane already driven, not 'a road already driven the other way'
     (a twenty-first probe, every direction driven twice, was asked to drive westbound).
     With one direction driven only, the other stays one to drive."""
-    seen: dict[str, list[uncertainty.DriveCandidate]] = {}
-    original = refine._drive_candidates
-
-    def spy(*args):  # type: ignore[no-untyped-def]
-        seen['candidates'] = original(*args)
-        return seen['candidates']
-
-    monkeypatch.setattr(refine, '_drive_candidates', spy)
+    seen = _record_candidates(monkeypatch)
     both = _run(make_scene(5, model='interior', geometry='head_on'))
     assert seen['candidates'] and all(c.driven for c in seen['candidates'])
     assert not any('driven the other way' in a for a in both.diagnostics['advice'])
