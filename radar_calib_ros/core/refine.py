@@ -1363,6 +1363,21 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
         Rotation.from_matrix(free.rotation @ kept.rotation.T).as_rotvec(),
         free.translation_m - kept.translation_m, [free.time_offset_s - kept.time_offset_s]])
     covariance = held.covariance + 0.25 * np.outer(difference, difference)
+    # The road plane is no surer of that tilt than the vehicle: the road users' reflections
+    # lie in it at heights that differ from lane to lane (traffic comes towards the radar
+    # on one side of the road showing its front, goes away on the other showing its rear),
+    # and across one road that height difference over the lanes' spread is its roll about
+    # the road. A twenty-fourth probe's radars beside one road: the plane 3 deg off in roll
+    # (8 of 8 runs), reported at 1.0-1.8. Held there, the fit's altitude and position follow
+    # that roll (targets metres below and beside the radar swing with it): a consider term
+    # of the vehicle's front/rear height difference (``refine.model_sigma_height_difference
+    # _m``) over twice the spread, rotating about the road through the radar.
+    axis = held.diagnostics.get('line_axis')
+    offset = held.diagnostics.get('target_offset_m')
+    if axis is not None and offset is not None:
+        roll = math.atan2(config.refine.model_sigma_height_difference_m, 2.0 * spread)
+        swing = np.concatenate([axis, -np.cross(axis, offset), [0.0]])
+        covariance = covariance + roll ** 2 * np.outer(swing, swing)
     diagnostics = dict(held.diagnostics)
     diagnostics.update(uncertainty.sigma_summary(covariance, kept.rotation))
     diagnostics['tilt_held'] = {'moved_deg': moved, 'line_spread_m': spread,
@@ -1705,7 +1720,11 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     if recording.has_elevation and ground_normal is not None:
         diagnostics['tilt_from_plane_deg'] = math.degrees(float(np.linalg.norm(
             Rotation.from_matrix(tilt_anchor @ est.rotation.T).as_rotvec()[:2])))
-        diagnostics['line_spread_m'] = _line_spread(model.geometry(x_hat)['world'], data)
+        world = model.geometry(x_hat)['world']
+        diagnostics['line_spread_m'] = _line_spread(world, data)
+        axis, centre = _line_axis(world, data)
+        diagnostics['line_axis'] = axis
+        diagnostics['target_offset_m'] = centre - est.translation_m
     if _noisy_azimuth(azimuth_noise, cfg.azimuth_sigma_deg):
         diagnostics['azimuth_noise_deg'] = azimuth_noise
         diagnostics['advice'] = [
@@ -2124,6 +2143,15 @@ def _line_spread(world: F64, data: _Selected) -> float:
     weight = data.sqrt_weight ** 2
     xy = world[:, :2] - np.average(world[:, :2], axis=0, weights=weight)
     return math.sqrt(max(float(np.linalg.eigvalsh(np.cov(xy.T, aweights=weight))[0]), 0.0))
+
+
+def _line_axis(world: F64, data: _Selected) -> tuple[F64, F64]:
+    """Horizontal unit direction (3,) in which the fitted targets spread most (the road's,
+    where they lie along one road), and their information-weighted centre (3,) [m]."""
+    weight = data.sqrt_weight ** 2
+    centre = np.average(world, axis=0, weights=weight)
+    _, axes = np.linalg.eigh(np.cov((world[:, :2] - centre[:2]).T, aweights=weight))
+    return np.array([axes[0, 1], axes[1, 1], 0.0]), centre
 
 
 def _position_spread(data: _Selected, poses: _Poses, offset_s: float) -> float:

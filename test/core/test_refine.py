@@ -1397,6 +1397,8 @@ def _fake_refinement(rotation_deg: float, altitude_m: float, moved_deg: float,
     return Refinement(Extrinsics(rot, np.array([1.0, 2.0, altitude_m]), 0.0),
                       np.diag([1e-5] * 3 + [1e-3] * 3 + [1e-6]), 1000, 6,
                       diagnostics={'tilt_from_plane_deg': moved_deg, 'line_spread_m': spread_m,
+                                   'line_axis': np.array([1.0, 0.0, 0.0]),
+                                   'target_offset_m': np.array([20.0, 3.0, -6.0]),
                                    'advice': []})
 
 
@@ -1406,8 +1408,9 @@ def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
         monkeypatch: pytest.MonkeyPatch, moved_deg: float, spread_m: float,
         held: bool) -> None:
     """Fitted along one road, a tilt far from the road plane's is refitted held at the
-    plane, and the difference joins the covariance as its 2 sigma; a tilt near the plane,
-    or views spread across the junction, keep the fit."""
+    plane, and the difference joins the covariance as its 2 sigma, with the plane's own
+    roll about the road (a lane-to-lane height difference over the spread) swinging the
+    position; a tilt near the plane, or views spread across the junction, keep the fit."""
     calls: list[float | None] = []
 
     def fake(*args: Any, tilt_prior_deg: float | None = None, **kwargs: Any) -> Any:
@@ -1428,11 +1431,19 @@ def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
         return
     assert calls == [None, refine._HELD_TILT_DEG]
     assert out.extrinsics.translation_m[2] == 6.0
-    # half the difference is one sigma: 1.25 deg of tilt, 0.4 m of altitude
+    # half the difference is one sigma: 1.25 deg of tilt, 0.4 m of altitude; the plane's
+    # roll about the road (east): 0.1 m over twice the 0.6 m spread, 4.8 deg, swings the
+    # targets 3 m left and 6 m below the radar, so the radar 6x across and 3x down
+    roll = math.atan2(config.refine.model_sigma_height_difference_m, 2.0 * spread_m)
+    assert math.degrees(roll) == pytest.approx(4.76, abs=0.01)
     tilt = math.sqrt(out.covariance[0, 0] + out.covariance[1, 1])
-    assert math.degrees(tilt) == pytest.approx(math.hypot(1.25, math.degrees(math.sqrt(2e-5))),
-                                               rel=0.01)
-    assert math.sqrt(out.covariance[5, 5]) == pytest.approx(math.hypot(0.4, 0.0316), rel=0.02)
+    assert math.degrees(tilt) == pytest.approx(
+        math.hypot(1.25, math.degrees(roll), math.degrees(math.sqrt(2e-5))), rel=0.01)
+    assert math.sqrt(out.covariance[4, 4]) == pytest.approx(math.hypot(6 * roll, 0.0316),
+                                                            rel=0.02)
+    assert math.sqrt(out.covariance[5, 5]) == pytest.approx(
+        math.sqrt(0.4 ** 2 + 0.001 + (3 * roll) ** 2), rel=0.02)
+    assert out.covariance[0, 4] == pytest.approx(-6 * roll ** 2, rel=0.02)
     assert out.diagnostics['tilt_held']['moved_deg'] == moved_deg
     assert out.diagnostics['advice'][0].startswith('The vehicle was seen along one road only')
     assert out.diagnostics['sigma_vertical_m'] == pytest.approx(math.sqrt(out.covariance[5, 5]))
