@@ -2570,7 +2570,7 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
                 for m in (data.pass_id == p for p in range(pc.n_passes)) if m.any()]
     advice = uncertainty.drive_advice(views_along, config.quality.max_boresight_sigma_m,
                                       coverage, candidates, bore, nearest, fixes_sigma,
-                                      headings)
+                                      headings, _turn_ranges(g, data, est))
     passes = []
     i_t = slice(3, 6)
     t_target = data.times.t_s
@@ -2628,6 +2628,26 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
 
 #: Largest yaw rate of a pose that shows a lane to drive again [rad/s].
 _LANE_MAX_YAW_RATE_RPS = 0.2
+
+
+#: Heading change within the view [rad] from which a pass counts as a turn through it.
+_TURN_RAD = math.radians(45.0)
+
+
+def _turn_ranges(g: dict[str, F64], data: _Selected, est: Extrinsics) -> list[float]:
+    """Distance from the radar [m] of each pass that turned through the view, where its
+    heading was halfway through the turn."""
+    vel, pos, t = g['vel'], g['pos'], data.times.t_s
+    ranges: list[float] = []
+    for p in np.unique(data.pass_id[data.pass_id >= 0]):
+        idx = np.flatnonzero(data.pass_id == p)
+        idx = idx[np.argsort(t[idx], kind='stable')]
+        heading = np.unwrap(np.arctan2(vel[idx, 1], vel[idx, 0]))
+        if idx.size < 2 or abs(heading[-1] - heading[0]) < _TURN_RAD:
+            continue
+        mid = idx[int(np.argmin(np.abs(heading - 0.5 * (heading[0] + heading[-1]))))]
+        ranges.append(float(np.hypot(*(pos[mid, :2] - est.translation_m[:2]))))
+    return ranges
 
 
 def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,

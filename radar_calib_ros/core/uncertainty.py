@@ -371,7 +371,8 @@ class DriveCandidate:
 def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverage,
                  candidates: list[DriveCandidate], boresight_rad: float,
                  nearest_m: float = 0.0, fixes_sigma_m: float = 0.0,
-                 headings_rad: Sequence[float] = ()) -> list[str]:
+                 headings_rad: Sequence[float] = (),
+                 turn_ranges_m: Sequence[float] = ()) -> list[str]:
     """Plain sentences naming the drive that would shrink a large along-boresight sigma.
 
     Parameters
@@ -385,6 +386,7 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     fixes_sigma_m : the vehicle's own position error, which ``sigma_along_m`` leaves out
         and the reported uncertainty adds; named where it is above the threshold too [m]
     headings_rad : ENU headings of the passes used
+    turn_ranges_m : distances from the radar [m] at which passes turned through the view
     """
     if not sigma_along_m > threshold_m:
         return []
@@ -408,9 +410,16 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     # 20-40 m: near enough for wide bearings, far enough to see the whole car; never nearer
     # than the vehicle was seen at all
     near = max(20.0, 5.0 * math.ceil(nearest_m / 5.0))
+    turn = f'about {near:.0f}-{near + 20.0:.0f} m from the radar'
+    turns = np.asarray(turn_ranges_m, float)
+    if turns.size:
+        # turns already driven at that range show those bearings again (a twenty-fourth
+        # probe's junction turns at 15-25 m were told to turn at 20-40 m): farther out
+        start = max(near, 5.0 * math.ceil((float(turns.max()) + 10.0) / 5.0))
+        turn = (f'again about {start:.0f}-{start + 20.0:.0f} m from the radar (the turns so '
+                f'far were {_span(turns)} m from it)')
     crossing = (f'cross the view (heading {compass_name(across)} or '
-                f'{compass_name(across + math.pi)}) or turn through it about '
-                f'{near:.0f}-{near + 20.0:.0f} m from the radar')
+                f'{compass_name(across + math.pi)}) or turn through it {turn}')
     headings = np.asarray(headings_rad, float)
     along_road = headings.size > 0 and bool(near_axis(headings, boresight_rad).all())
     if along_road:
@@ -444,19 +453,17 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
         other = (f'drive through it heading {compass_name(boresight_rad)} or '
                  f'{compass_name(boresight_rad + math.pi)} (towards or away from the radar)')
         sentences.append(
-            f'Better still, where the roads allow, turn through the view about '
-            f'{near:.0f}-{near + 20.0:.0f} m from the radar, or {other}: the passes so far '
-            'all cross it, where each side of the vehicle is seen at one bearing per lane; '
-            'then calibrate again.')
+            f'Better still, where the roads allow, turn through the view {turn}, or {other}: '
+            'the passes so far all cross it, where each side of the vehicle is seen at one '
+            'bearing per lane; then calibrate again.')
         return sentences
     if crossing_passes.any():
         # some passes cross the view already: more of the same at that range adds little
         # (a twenty-second probe crossed 4 and 8 times and was told to cross again)
         sentences.append(
-            f'Better still, where the roads allow, turn through the view about '
-            f'{near:.0f}-{near + 20.0:.0f} m from the radar, or cross it at another range '
-            'than before, so the front and rear are seen from other bearings; then calibrate '
-            'again.')
+            f'Better still, where the roads allow, turn through the view {turn}, or cross it '
+            'at another range than before, so the front and rear are seen from other '
+            'bearings; then calibrate again.')
         return sentences
     sentences.append(
         f'Better still, where the roads allow, {crossing}, so the front and rear are seen '
@@ -477,6 +484,12 @@ def near_axis(headings_rad: F64, axis_rad: float) -> np.ndarray:
     ``axis_rad``, in either direction along it."""
     return np.abs(np.sin(np.asarray(headings_rad, float) - axis_rad)) < math.sin(
         _NEAR_AXIS_RAD)
+
+
+def _span(values: F64) -> str:
+    """'20' or '15-25': the range of ``values``, rounded to metres."""
+    lo, hi = round(float(values.min())), round(float(values.max()))
+    return f'{lo}' if lo == hi else f'{lo}-{hi}'
 
 
 def _join(names: list[str]) -> str:

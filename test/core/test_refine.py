@@ -865,6 +865,51 @@ def test_the_cross_the_view_range_starts_beyond_a_blind_zone() -> None:
     assert 'about 20-40 m from the radar' in text
 
 
+def test_turns_already_driven_are_asked_for_farther_out() -> None:
+    """Turns driven 15-25 m from the radar showed those bearings: the advice asks for
+    turns beyond them and names where the turns so far were; without turns, 20-40 m."""
+    coverage = uncertainty.view_coverage(np.zeros(10), np.zeros(10), np.ones(10))
+    for headings in ([0.0, math.pi / 4.0], [0.05, math.pi, -0.1], [0.0, math.pi / 2.0]):
+        text = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], math.pi / 2.0,
+                                                 headings_rad=headings,
+                                                 turn_ranges_m=[15.2, 24.6, 19.0]))
+        assert 'turn through the view again about 35-55 m from the radar (the turns so far ' \
+               'were 15-25 m from it)' in text
+        assert '20-40 m' not in text
+        plain = ' '.join(uncertainty.drive_advice(0.2, 0.05, coverage, [], math.pi / 2.0,
+                                                  headings_rad=headings))
+        assert 'about 20-40 m from the radar' in plain and 'turns so far' not in plain
+
+
+def test_passes_that_turn_through_the_view_are_found_with_their_range() -> None:
+    """A pass that turns left by 90 deg round a corner 20 m from the radar counts as a
+    turn there; a straight pass and one that bends by 20 deg do not."""
+    from types import SimpleNamespace
+    n = 50
+    arc = np.linspace(0.0, math.pi / 2.0, n)
+    # the turn: a quarter circle of radius 10 m centred 20 m + 10 m east of the radar
+    turn_pos = np.column_stack([30.0 - 10.0 * np.cos(arc), -10.0 + 10.0 * np.sin(arc),
+                                np.zeros(n)])
+    turn_vel = np.column_stack([np.sin(arc), np.cos(arc), np.zeros(n)])
+    straight_pos = np.column_stack([np.linspace(-30, 30, n), np.full(n, 40.0), np.zeros(n)])
+    straight_vel = np.tile([1.0, 0.0, 0.0], (n, 1))
+    bend = np.linspace(0.0, math.radians(20.0), n)
+    bend_vel = np.column_stack([np.cos(bend), np.sin(bend), np.zeros(n)])
+    g = {'pos': np.concatenate([turn_pos, straight_pos, straight_pos]),
+         'vel': np.concatenate([turn_vel, straight_vel, bend_vel])}
+    order = np.arange(3 * n)[::-1]    # targets in any order: sorted by time inside
+    g = {k: v[order] for k, v in g.items()}
+    t = np.concatenate([np.arange(n), 100 + np.arange(n), 200 + np.arange(n)])[order]
+    data = SimpleNamespace(pass_id=np.repeat([0, 1, 2], n)[order],
+                           times=SimpleNamespace(t_s=t.astype(float)))
+    est = Extrinsics(np.eye(3), np.zeros(3), 0.0)
+    ranges = refine._turn_ranges(g, data, est)  # type: ignore[arg-type]
+    # halfway through the turn: 45 deg round the arc
+    expected = math.hypot(30.0 - 10.0 * math.cos(math.pi / 4), -10.0 + 10.0 * math.sin(
+        math.pi / 4))
+    assert ranges == [pytest.approx(expected, abs=0.5)]
+
+
 def test_a_side_fire_radar_is_not_told_to_cross_its_view_again() -> None:
     """Boresight north (ENU pi/2), every pass eastbound or westbound: they all cross the
     view already, so the advice asks for a turn or a road towards the radar instead; with
