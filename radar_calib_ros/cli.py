@@ -131,6 +131,13 @@ class _LoggedWarnings(logging.Handler):
         self.messages.add(record.getMessage())
 
 
+def _echo_advice(out: TextIO) -> bool:
+    """Whether the summary's advice is repeated as warnings on stderr: only for someone
+    watching a terminal while the summary goes elsewhere (each sentence was printed twice
+    to a terminal, four paragraphs of advice among them)."""
+    return bool(sys.stderr.isatty()) and not (hasattr(out, 'isatty') and out.isatty())
+
+
 def _num(value: Any) -> float:
     return float(value) if isinstance(value, (int, float)) else math.nan
 
@@ -158,9 +165,10 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
         write_result_json(args.json, calibration)
     for line in summary_lines(calibration, result.stage_times_s, read_s):
         print(line, file=out)
-    for advice in calibration['quality'].get('advice') or []:
-        if advice not in logged.messages:
-            print(f'warning: {advice}', file=sys.stderr)
+    if _echo_advice(out):
+        for advice in calibration['quality'].get('advice') or []:
+            if advice not in logged.messages:
+                print(f'warning: {advice}', file=sys.stderr)
     print(f'result written to {args.output}' + (f' and {args.json}' if args.json else ''),
           file=out)
     if args.report:
@@ -307,8 +315,9 @@ def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
               f'{outcome.read_s + outcome.run_s:.1f} s', file=out)
         for line in outcome.summary:
             print(line, file=out)
-        for advice in outcome.calibration['quality'].get('advice') or []:
-            print(f'warning: {outcome.frame_id}: {advice}', file=sys.stderr)
+        if _echo_advice(out):
+            for advice in outcome.calibration['quality'].get('advice') or []:
+                print(f'warning: {outcome.frame_id}: {advice}', file=sys.stderr)
 
     outcomes = calibrate_all_radars(args.bag, args.params, jobs=args.jobs, done=done)
     written = write_outcomes(args.output_dir, outcomes)

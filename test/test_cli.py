@@ -190,6 +190,32 @@ def test_a_gnss_receiver_at_1_hz_beside_the_ins_calibrates(
     assert lag is not None and 60 <= int(lag.group(1)) <= 180, out + err
     errors = calibration_errors(load_result(tmp_path / 'r.yaml'), summary.truth)
     assert errors['horizontal_m'] < 0.10 and errors['rotation_deg'] < 0.3, errors
+    # the summary's advice is said once, not again as warnings
+    advice = [line[len('  advice: '):] for line in out.splitlines()
+              if line.startswith('  advice: ')]
+    assert not any(a in err for a in advice)
+
+
+class _Stream(io.StringIO):
+    def __init__(self, tty: bool) -> None:
+        super().__init__()
+        self._tty = tty
+
+    def isatty(self) -> bool:
+        return self._tty
+
+
+@pytest.mark.parametrize('out_tty, err_tty, echoed', [
+    (True, True, False), (False, True, True), (False, False, False), (True, False, False)])
+def test_the_advice_reaches_a_terminal_once(monkeypatch: pytest.MonkeyPatch, out_tty: bool,
+                                            err_tty: bool, echoed: bool) -> None:
+    """The summary (stdout) carries the advice; it is repeated on stderr only for someone
+    watching a terminal while the summary goes to a file or a pipe."""
+    import sys
+
+    from radar_calib_ros import cli
+    monkeypatch.setattr(sys, 'stderr', _Stream(err_tty))
+    assert cli._echo_advice(_Stream(out_tty)) is echoed
 
 
 def test_vehicle_never_in_view_exits_1_without_result(
