@@ -8,12 +8,13 @@ stderr; only bugs keep a traceback.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -79,8 +80,11 @@ def calibrate_bag(bag: str | Path, config: CalibConfig, *, progress: _Progress |
 
 
 def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | None = None,
-                  read_s: float | None = None) -> list[str]:
-    """The one-screen summary of a calibration."""
+                  read_s: float | None = None,
+                  sources: Mapping[str, str] | None = None) -> list[str]:
+    """The one-screen summary of a calibration (with the topics it was read from, where
+    given: a twenty-fifth probe's radar picked by type among a lidar's points was never
+    named)."""
     q = calibration.get('quality') or {}
     sigma = q.get('sigma') or {}
     e, n, alt = calibration['translation']
@@ -93,6 +97,9 @@ def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | N
         f'  roll/pitch/yaw  {r:.3f} / {p:.3f} / {y:.3f} deg   boresight '
         f'{calibration["boresight_azimuth_deg"]:.2f} deg from true north',
     ]
+    if sources:
+        lines.insert(1, '  topics     ' + ', '.join(
+            f'{_ROLE_NAMES.get(role, role)} {topic}' for role, topic in sources.items()))
     if q:
         lines.append(
             f'  quality    r_i {100 * _num(q.get("inlier_ratio")):.1f} %  '
@@ -116,6 +123,9 @@ def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | N
     for advice in q.get('advice') or []:
         lines.append(f'  advice: {advice}')
     return lines
+
+
+_ROLE_NAMES = {'radar': 'radar', 'navsat': 'NavSatFix', 'odom': 'Odometry'}
 
 
 class _LoggedWarnings(logging.Handler):
@@ -147,6 +157,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     config = _load_config(args.params)
     if args.all_radars:
         return cmd_calibrate_all_radars(args, out)
+    config = _radar_of_frame(args.bag, config)
     _refuse_ambiguous_radar(args.bag, config)
     args.output = args.output or 'result.yaml'
     _check_writable(args.output, args.json)
@@ -163,7 +174,8 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     write_result_yaml(args.output, calibration)
     if args.json:
         write_result_json(args.json, calibration)
-    for line in summary_lines(calibration, result.stage_times_s, read_s):
+    for line in summary_lines(calibration, result.stage_times_s, read_s,
+                              result.recording.sources):
         print(line, file=out)
     if _echo_advice(out):
         for advice in calibration['quality'].get('advice') or []:
@@ -239,6 +251,19 @@ def _calibrated_recording(bag: str, calibration_path: str,
                                radar_topic=_topic_of_frame(bag, config,
                                                            str(calibration.get('radar_frame'))))
     return calibration, recording
+
+
+def _radar_of_frame(bag: str, config: CalibConfig) -> CalibConfig:
+    """Where the bag holds several radar topics and the parameters name none but set
+    ``radar.frame_id``, the topic whose messages are in that frame (as ``evaluate`` finds
+    it: a twenty-fifth probe's ``calibrate`` refused what ``evaluate`` took)."""
+    if 'radar.frame_id' not in config.explicit:
+        return config
+    topic = _topic_of_frame(bag, config, config.radar.frame_id)
+    if topic is None:
+        return config
+    return dataclasses.replace(config, radar_topic=topic,
+                               explicit=config.explicit | {'radar_topic'})
 
 
 def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
@@ -528,8 +553,39 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         return int(err.code or 0)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format='%(levelname)s %(name)s: %(message)s')
+    # one filter per handler: each passes a record the others have passed too
+    filters = [(handler, _Once()) for handler in logging.getLogger().handlers]
+    for handler, once in filters:
+        handler.addFilter(once)
     try:
-        return int(args.func(args, out or sys.stdout))
+        return _run(args, out or sys.stdout)
+    finally:
+        for handler, once in filters:
+            handler.removeFilter(once)
+
+
+class _Once(logging.Filter):
+    """Lets each warning through once per run: the bag is opened by several steps (its
+    radar frame, its radar topics, the reading), and a twenty-fifth probe read 'has no
+    metadata.yaml' three times."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._seen: set[tuple[str, str]] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        key = (record.name, record.getMessage())
+        if key in self._seen:
+            return False
+        self._seen.add(key)
+        return True
+
+
+def _run(args: argparse.Namespace, out: TextIO) -> int:
+    try:
+        return int(args.func(args, out))
     except CalibrationError as err:
         print(f'error: {err}', file=sys.stderr)
         return exit_code(err)

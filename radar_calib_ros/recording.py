@@ -65,6 +65,8 @@ class Recording:
         zero on the side nearer the poses' clock); the pipeline tries it (such a step is
         not told from a transport latency that settled higher by the receipts alone).
         None without one.
+    sources : the bag topic each role was read from (``'radar'``, ``'navsat'``, ``'odom'``);
+        empty where the messages came otherwise (the node).
     """
 
     frame_stamps_ns: I64
@@ -75,6 +77,7 @@ class Recording:
     counters: dict[str, int] = field(default_factory=dict)
     fix_sigma_m: tuple[float, float] | None = None
     radar_clock_rejoin_ns: I64 | None = None
+    sources: dict[str, str] = field(default_factory=dict)
 
     def view_sample_m(self) -> F64:
         """Up to about ``_VIEW_SAMPLE`` of the targets' sensor-frame positions, evenly
@@ -1518,6 +1521,12 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
     out: dict[str, int] = {}
     if radar_lag.size < _RECEIPT_WINDOW or pose_lag.size < _RECEIPT_WINDOW:
         return out
+    # A bag written by a converter may give every message one receive time (or a handful):
+    # those receipts say nothing of the clocks (a twenty-fifth probe's were read as the
+    # radar's stamps jumping by 188 s)
+    for received in (radar_received, pose_received):
+        if received is not None and np.unique(received).size < _RECEIPT_DISTINCT * received.size:
+            return out
     offset_ns = float(np.median(pose_lag) - np.median(radar_lag))
     out['radar_stamp_offset_ms'] = int(round(offset_ns / 1e6))
     step = _radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)
@@ -1530,6 +1539,8 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
     return out
 
 
+#: Fewest distinct receive times, as a fraction of the messages, for the receipts to count.
+_RECEIPT_DISTINCT = 0.1
 #: Messages on either side of a smaller step of the radar's clock (about 10 s at 15 Hz),
 #: and the least such step named [s]: an NTP correction of a few hundred milliseconds.
 _RECEIPT_STEP_WINDOW = 150

@@ -270,6 +270,51 @@ def test_evaluate_finds_one_radars_topic_by_its_frame(monkeypatch: pytest.Monkey
     assert cli._topic_of_frame('b', named, 'radar_sw') is None
 
 
+def test_calibrate_finds_the_radar_of_the_frame_the_parameters_name(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Several radar topics, none named, radar.frame_id set: calibrate takes the topic in
+    that frame, as evaluate does (it refused before: 'the parameters name none')."""
+    from radar_calib_ros import cli
+    from radar_calib_ros.io import bag as bag_io
+
+    frames = {'/north/points': 'radar_ne', '/south/points': 'radar_sw'}
+    monkeypatch.setattr(bag_io, 'radar_frame_ids', lambda path: frames)
+    by_frame = CalibConfig.from_mapping({'radar.frame_id': 'radar_sw'})
+    chosen = cli._radar_of_frame('b', by_frame)
+    assert chosen.radar_topic == '/south/points' and 'radar_topic' in chosen.explicit
+    # the default frame, a frame no topic is in, or a topic already named: left alone
+    assert cli._radar_of_frame('b', CalibConfig()) == CalibConfig()
+    elsewhere = CalibConfig.from_mapping({'radar.frame_id': 'radar_x'})
+    assert cli._radar_of_frame('b', elsewhere).radar_topic == CalibConfig().radar_topic
+    named = CalibConfig.from_mapping({'radar.frame_id': 'radar_sw',
+                                      'radar_topic': '/north/points'})
+    assert cli._radar_of_frame('b', named).radar_topic == '/north/points'
+
+
+def test_a_warning_said_by_several_steps_is_printed_once(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The bag is opened by several steps of one run, each warning alike ('has no
+    metadata.yaml' three times): a run lets each warning through once, and leaves no
+    filter behind for the next run."""
+    import logging
+
+    from radar_calib_ros import cli
+
+    def record(name: str, level: int, text: str) -> logging.LogRecord:
+        return logging.LogRecord(name, level, __file__, 1, text, None, None)
+    once = cli._Once()
+    bag = 'radar_calib_ros.io.bag'
+    assert once.filter(record(bag, logging.WARNING, 'no metadata.yaml'))
+    assert not once.filter(record(bag, logging.WARNING, 'no metadata.yaml'))
+    assert once.filter(record('radar_calib_ros.cli', logging.WARNING, 'no metadata.yaml'))
+    assert once.filter(record(bag, logging.INFO, 'read'))
+    assert once.filter(record(bag, logging.INFO, 'read'))
+    handlers = logging.getLogger().handlers
+    before = [list(h.filters) for h in handlers]
+    assert main(['calibrate', 'no-such-bag']) == 2
+    assert [list(h.filters) for h in handlers] == before
+
+
 def test_report_reads_the_calibrated_radars_topic_as_evaluate_does(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """One radar's result of --all-radars (or the combined file with radar.frame_id set)

@@ -740,6 +740,13 @@ def test_receipt_times_show_a_radar_clock_offset_and_a_jump() -> None:
     paused[300:] += 60 * 10**9         # nothing for a minute: stamps and receipt move together
     calm = _receipt_checks(latency, paused, pose_lag)
     assert 'radar_stamp_jump_ms' not in calm and abs(calm['radar_stamp_offset_ms']) < 100
+    # a converter's bag: every message received at one time, which says nothing of the
+    # clocks (the lags then only mirror the stamps: a jump of the whole recording's length)
+    stamps = received - jumped
+    flat = np.full(600, received[-1])
+    assert _receipt_checks(flat - stamps, flat, pose_lag) == {}
+    pose_flat = np.full(3000, received[-1])
+    assert _receipt_checks(jumped, received, pose_lag, pose_flat) == {}
 
 
 def test_an_odometry_on_a_clock_of_its_own_is_left_out_and_the_radar_judged_by_the_fixes(

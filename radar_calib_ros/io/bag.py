@@ -19,11 +19,12 @@ import struct
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer, WriterError
+from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.serde import SerdeError
+from rosbags.typesys import TypesysError
 
 from radar_calib_ros.errors import BagReadError, DecodeError
 from radar_calib_ros.io import messages as msgs
@@ -165,13 +166,138 @@ def _check_bag_path(path: Path) -> Path:
     return path
 
 
-@contextmanager
-def _open_reader(path: Path) -> Iterator[AnyReader]:
-    """AnyReader over one rosbag2 bag, its errors translated to BagReadError."""
-    path = _check_bag_path(path)
+class _BagReader(Protocol):
+    """What the reading below needs of a bag reader (AnyReader or ``_PlainReader``)."""
+
+    connections: list[Any]
+
+    def messages(self, connections: Iterable[Any] = ...) -> Iterator[tuple[Any, int, Any]]:
+        ...
+
+    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
+        ...
+
+    def close(self) -> None:
+        ...
+
+
+@dataclasses.dataclass(frozen=True)
+class _Topic:
+    """One topic of a sqlite3 storage file, as rosbags' ``Connection`` names it."""
+
+    id: int
+    topic: str
+    msgtype: str
+    msgcount: int
+
+
+class _PlainReader:
+    """A bag read without its embedded message definitions, decoded with our Jazzy
+    typestore: rosbags' storage reader for mcap, sqlite3 itself (read-only) for sqlite3
+    storage, so that a write-ahead log left by an interrupted recording is read too.
+
+    AnyReader parses every topic's embedded definition when it opens a bag, so one vendor
+    topic with a broken or incomplete definition made a twenty-fifth probe's whole
+    recording unreadable (exit 2) although its radar, fix and odometry were intact; and it
+    opens sqlite3 files as immutable, which skips a ``.db3-wal`` file (the probe's
+    interrupted recording: 5 of its 9 passes read, nothing said). The topics we decode are
+    standard ROS 2 types, which our typestore knows.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._typestore = msgs.get_typestore()
+        self._sqlite: list[tuple[sqlite3.Connection, dict[int, _Topic]]] = []
+        self._rosbag: Any = None
+        files = _storage_files(path)
+        self.connections: list[Any] = []
+        if files and all(f.suffix == '.db3' for f in files):
+            for n, file in enumerate(files):
+                db = sqlite3.connect(f'file:{file}?mode=ro', uri=True)
+                self._sqlite.append((db, {}))
+                rows = db.execute('SELECT topics.id, name, type, count(messages.id) FROM '
+                                  'topics LEFT JOIN messages ON messages.topic_id = topics.id '
+                                  'GROUP BY topics.id').fetchall()
+                for topic_id, name, msgtype, count in rows:
+                    topic = _Topic(int(topic_id), str(name), str(msgtype), int(count))
+                    self._sqlite[n][1][topic.id] = topic
+                    self.connections.append(topic)
+        else:
+            self._rosbag = Reader(path)
+            self._rosbag.open()
+            self.connections = list(self._rosbag.connections)
+
+    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, bytes]]:
+        wanted = list(connections)
+        if self._rosbag is not None:
+            yield from self._rosbag.messages(connections=wanted)
+            return
+        for db, topics in self._sqlite:
+            ids = [t.id for t in wanted if topics.get(t.id) is t] if wanted else list(topics)
+            if not ids:
+                continue
+            query = ('SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN '
+                     f'({",".join("?" * len(ids))}) ORDER BY timestamp')
+            for topic_id, stamp, data in db.execute(query, ids):
+                yield topics[topic_id], int(stamp), data
+
+    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
+        return self._typestore.deserialize_cdr(rawdata, msgtype)
+
+    def close(self) -> None:
+        for db, _ in self._sqlite:
+            db.close()
+        if self._rosbag is not None:
+            self._rosbag.close()
+
+
+def _storage_files(path: Path) -> list[Path]:
+    """The storage files of a bag (a directory) or the one file given."""
+    if path.is_file():
+        return [path]
+    return sorted(p for p in path.iterdir() if p.suffix in _STORAGE_SUFFIXES)
+
+
+def _unread_logs(path: Path) -> list[Path]:
+    """Write-ahead logs of sqlite3 storage files that still hold pages (a recording not
+    closed cleanly), which an immutable open of the database does not see."""
+    logs = [Path(f'{f}-wal') for f in _storage_files(path) if f.suffix == '.db3']
+    return [w for w in logs if w.is_file() and w.stat().st_size > 0]
+
+
+def _storage_opens(path: Path) -> bool:
+    """Whether rosbags' storage reader, which parses no message definition, opens the bag:
+    then what AnyReader failed on were the definitions."""
     try:
-        reader = AnyReader([path], default_typestore=msgs.get_typestore())
-        reader.open()
+        with Reader(path):
+            return True
+    except (OSError, *_STORAGE_ERRORS):
+        return False
+
+
+@contextmanager
+def _open_reader(path: Path) -> Iterator[_BagReader]:
+    """A reader over one rosbag2 bag (AnyReader; ``_PlainReader`` where AnyReader cannot
+    read the embedded definitions or would miss a write-ahead log), its errors translated
+    to BagReadError."""
+    path = _check_bag_path(path)
+    reader: Any = None
+    try:
+        logs = _unread_logs(path)
+        if logs:
+            _LOG.warning('%s holds messages not yet in its database (a recording not closed '
+                         'cleanly): read through it, read-only', logs[0].name)
+            reader = _PlainReader(path)
+        else:
+            reader = AnyReader([path], default_typestore=msgs.get_typestore())
+            try:
+                reader.open()
+            except (AnyReaderError, KeyError, TypesysError) as err:
+                if not _storage_opens(path):
+                    raise
+                _LOG.warning('the bag\'s embedded message definitions cannot be read (%s): '
+                             'its topics are decoded with the standard ROS 2 Jazzy ones',
+                             _reason(err))
+                reader = _PlainReader(path)
     except PermissionError as err:
         raise BagReadError(f'reading bag {str(path)!r}: permission denied') from err
     except (OSError, *_STORAGE_ERRORS) as err:
@@ -214,7 +340,7 @@ def radar_topics(path: str | Path, velocity_field: str = '') -> list[str]:
 _FIELD_PEEK_MESSAGES = 20
 
 
-def _not_radars(reader: AnyReader, path: Path, velocity_field: str) -> set[str]:
+def _not_radars(reader: _BagReader, path: Path, velocity_field: str) -> set[str]:
     """Where a bag has several PointCloud2 / RadarScan topics: the PointCloud2 topics whose
     first cloud with fields has no radial-velocity field (a lidar beside the radar, as a
     simulator records it), which are not radars. Empty with one such topic, whose decoding
@@ -348,10 +474,11 @@ def read_recording(path: str | Path, config: CalibConfig, *,
             raise first_error
         _LOG.warning('%d radar messages could not be decoded and were skipped; the first: %s',
                      builder.counters['radar_messages_malformed'], first_error)
-    return builder.build()
+    return dataclasses.replace(builder.build(), sources={
+        role: topic for role, topic in chosen.items() if topic is not None})
 
 
-def _messages(reader: AnyReader, connections: list[Connection],
+def _messages(reader: _BagReader, connections: list[Connection],
               path: Path) -> Iterator[tuple[Connection, int, Any]]:
     """(connection, record time [ns], message) of the given connections, deserialised,
     storage errors translated."""

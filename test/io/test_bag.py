@@ -426,6 +426,71 @@ def test_a_bag_without_metadata_reads_its_one_storage_file(
         read_recording(bag, CalibConfig())
 
 
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_vendor_topic_with_a_broken_definition_leaves_the_rest_readable(
+        tmp_path: Path, ts: Any, storage: str, caplog: pytest.LogCaptureFixture) -> None:
+    """A vendor topic whose embedded definition names a type it does not define made the
+    whole bag unreadable (rosbags' AnyReader parses every definition on opening): its
+    radar, fixes and odometry read with our own definitions, and that is said."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    s = scene()
+    path = tmp_path / 'vendor'
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    with Writer(path, version=9, storage_plugin=plugin) as writer:
+        connections: dict[str, Any] = {}
+        for topic, msgtype, stamp, msg in bag_messages(ts, s):
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(connections[topic], stamp, bytes(ts.serialize_cdr(msg, msgtype)))
+        vendor = writer.add_connection(
+            '/objects', 'acme_radar_msgs/msg/ObjectList',
+            msgdef='std_msgs/Header header\nacme_radar_msgs/Object[] objects\n',
+            rihs01='RIHS01_' + '0' * 64)
+        writer.write(vendor, int(s['stamps'][0]), bytes(24))
+    with pytest.raises(Exception):   # what AnyReader alone makes of it
+        from rosbags.highlevel import AnyReader
+        with AnyReader([path], default_typestore=ts):
+            pass
+    with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+        rec = read_recording(path, CalibConfig())
+    assert rec.counters['radar_frames'] == len(s['frames'])
+    assert rec.sources == {'radar': '/radar/points', 'navsat': '/vehicle/fix',
+                           'odom': '/vehicle/odom'}
+    assert 'embedded message definitions cannot be read' in caplog.text
+    assert radar_topics(path) == ['/radar/points']
+
+
+def test_an_unclosed_write_ahead_log_is_read(tmp_path: Path, good_bags: dict[str, Path],
+                                             caplog: pytest.LogCaptureFixture) -> None:
+    """A sqlite3 recording whose last messages are still in its write-ahead log (rosbag2
+    interrupted, or still recording): rosbags opens the database immutable and skipped
+    them; they are read, and that is said."""
+    import sqlite3
+    bag = _copy(good_bags['sqlite3'], tmp_path / 'wal')
+    db_path = _storage_file(bag)
+    full = read_recording(bag, CalibConfig()).counters['radar_frames']
+    db = sqlite3.connect(db_path)
+    radar_id = db.execute("SELECT id FROM topics WHERE name = '/radar/points'").fetchone()[0]
+    later = db.execute('SELECT id, topic_id, timestamp, data FROM messages WHERE topic_id = ? '
+                       'ORDER BY timestamp', (radar_id,)).fetchall()[full // 2:]
+    db.execute('DELETE FROM messages WHERE id IN (%s)' % ','.join('?' * len(later)),
+               [row[0] for row in later])
+    db.commit()
+    db.execute('PRAGMA journal_mode=WAL')
+    db.execute('PRAGMA wal_autocheckpoint=0')
+    db.executemany('INSERT INTO messages (id, topic_id, timestamp, data) VALUES (?, ?, ?, ?)',
+                   later)
+    db.commit()    # in the log, not in the database while this connection stays open
+    try:
+        assert Path(f'{db_path}-wal').stat().st_size > 0
+        with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+            rec = read_recording(bag, CalibConfig())
+        assert rec.counters['radar_frames'] == full
+        assert 'not yet in its database' in caplog.text
+    finally:
+        db.close()
+
+
 def test_a_truncated_mcap_file_is_named_as_cut_short(tmp_path: Path,
                                                      good_bags: dict[str, Path]) -> None:
     bag = _copy(good_bags['mcap'], tmp_path / 'bag')
