@@ -158,6 +158,29 @@ def vehicle_track_ids(recording: Recording, tracked: TrackedTargets, extrinsics:
     return ids[mean <= max_mean_offset_m].astype(np.int64)
 
 
+#: Radial velocity off the vehicle's [m/s] beyond which a target of its tracks moves unlike
+#: it: another road user merged into its clusters, or a wheel's micro-Doppler.
+MOTION_MISMATCH_MPS = 0.5
+
+
+def moving_unlike_vehicle(recording: Recording, target_index: I64, extrinsics: Extrinsics,
+                          config: CalibConfig) -> np.ndarray:
+    """(n,) True for the given targets whose radial velocity differs from the one the
+    vehicle's motion gives them under a calibration by more than ``MOTION_MISMATCH_MPS``
+    (its yaw rate neglected); False where there is no pose."""
+    target_index = np.asarray(target_index, np.int64)
+    offset_s = config.sync.time_offset + extrinsics.time_offset_s
+    poses = interpolate_poses(recording.vehicle, recording.stamps_of(target_index)
+                              + np.int64(round(offset_s * 1e9)), config.sync.max_pose_gap)
+    world = extrinsics.apply(recording.targets.positions_m[target_index])
+    rays = world - np.asarray(extrinsics.translation_m, np.float64)
+    rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
+    predicted = np.sum(poses.velocities_mps * rays, axis=1)
+    measured = recording.targets.radial_velocity_mps[target_index]
+    unlike: np.ndarray = poses.valid & (np.abs(measured - predicted) > MOTION_MISMATCH_MPS)
+    return unlike
+
+
 def recording_metrics(recording: Recording, target_index: I64, extrinsics: Extrinsics,
                       config: CalibConfig) -> PaperMetrics:
     """:func:`paper_metrics` of the given targets of a recording."""

@@ -793,7 +793,8 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'point, and calibrate again.')
     odometry = max(counters.get('odometry', 0), 1)
     notes += [_dropped(counters.get('radar_messages_malformed', 0), 'radar message',
-                       lambda n: 'could not be decoded (truncated or malformed PointCloud2)',
+                       lambda n: 'could not be decoded (truncated, malformed, or without a '
+                       'field the others have: the first one\'s reason was logged)',
                        'skipped; check the driver'),
               _dropped(counters.get('odometry_invalid', 0), 'Odometry message',
                        lambda n: f'({100 * n / odometry:.0f} %) had no usable pose (a NaN, or a '

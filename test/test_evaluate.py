@@ -90,6 +90,37 @@ def test_a_wrong_calibration_scores_worse_and_shows_its_error(
     assert bad.errors['horizontal_m'] == pytest.approx(0.5, abs=1e-6)
 
 
+@pytest.mark.parametrize('share, named', [(0.1, True), (0.6, False), (0.0, False)])
+def test_targets_moving_unlike_the_vehicle_are_named_with_the_metrics_without_them(
+        sim: SimulationSummary, config: CalibConfig, recording: Recording,
+        monkeypatch: pytest.MonkeyPatch, share: float, named: bool) -> None:
+    """Other road users merged into the vehicle's tracks count in the paper's figures; the
+    share that moves unlike the vehicle is named with the figures without it, unless most
+    do (a radar on another velocity convention)."""
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+
+    def some(rec: Recording, index: Any, ext: Any, cfg: CalibConfig) -> Any:
+        mask = np.zeros(len(index), bool)
+        mask[:int(round(share * len(index)))] = True
+        return mask
+    monkeypatch.setattr(metrics, 'moving_unlike_vehicle', some)
+    ev = evaluate.evaluate_recording(recording, _calibration(truth), config, truth=truth)
+    assert ev.unlike_fraction == pytest.approx(share, abs=0.01)
+    text = evaluate.format_evaluation(ev)
+    out = evaluate.evaluation_dict(ev)
+    assert out['moving_unlike_vehicle_fraction'] == ev.unlike_fraction
+    if not named:
+        assert ev.paper_alike is None and 'move unlike the vehicle' not in text
+        assert out['without_unlike'] is None
+        return
+    assert ev.paper_alike is not None
+    dropped = int(round(share * ev.target_index.size))
+    assert abs(ev.paper_alike.n_targets - (ev.paper.n_targets - dropped)) <= 0.01 * dropped
+    assert f'{100 * ev.unlike_fraction:.1f} % of these targets move unlike the vehicle' in text
+    assert out['without_unlike']['n_targets'] == ev.paper_alike.n_targets
+
+
 def test_range_bins_add_up(sim: SimulationSummary, config: CalibConfig,
                            recording: Recording) -> None:
     truth = load_ground_truth(sim.paths.bag)

@@ -87,3 +87,21 @@ def test_vehicle_track_ids_follow_the_paper_protocol() -> None:
     np.testing.assert_array_equal(index, [0, 1, 2, 4])
     m = metrics.recording_metrics(recording, index, SENSOR, CFG)
     assert m.n_targets == 4 and m.inlier_ratio == pytest.approx(0.75)
+
+
+def test_targets_moving_unlike_the_vehicle_are_found() -> None:
+    """Radial velocities off the vehicle's predicted ones by more than 0.5 m/s mark a
+    target as moving unlike it (another road user merged into its track); one without a
+    pose is not marked."""
+    vehicle = _vehicle(speed_mps=10.0)
+    frames = np.array([1, 2, 3, 20]) * S      # the last: after the poses end
+    world = np.array([[10 + 1.5, 0.0, 0.5], [20 + 2.0, 0.3, 0.5], [30 + 1.0, -0.2, 0.5],
+                      [200.0, 0.0, 0.5]])
+    rays = world - SENSOR.translation_m
+    rays /= np.linalg.norm(rays, axis=1)[:, None]
+    predicted = 10.0 * rays[:, 0]
+    measured = predicted + np.array([0.1, -0.3, 2.0, 5.0])
+    targets = Targets(SENSOR.inverse_apply(world), measured, np.arange(4))
+    recording = Recording(frames, targets, vehicle, LocalFrame.at(48.4, 9.99))
+    unlike = metrics.moving_unlike_vehicle(recording, np.arange(4), SENSOR, CFG)
+    np.testing.assert_array_equal(unlike, [False, False, True, False])
