@@ -491,11 +491,41 @@ def test_an_unclosed_write_ahead_log_is_read(tmp_path: Path, good_bags: dict[str
         db.close()
 
 
-def test_a_truncated_mcap_file_is_named_as_cut_short(tmp_path: Path,
-                                                     good_bags: dict[str, Path]) -> None:
-    bag = _copy(good_bags['mcap'], tmp_path / 'bag')
+def test_a_truncated_mcap_file_is_read_up_to_the_cut(
+        tmp_path: Path, ts: Any, caplog: pytest.LogCaptureFixture) -> None:
+    """An MCAP recording cut short (power lost): the messages before the cut are read,
+    with a warning; cut inside its first chunk, it is named as cut short, with the
+    repair."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    s = scene(n_frames=40, n_poses=200)
+    bag = tmp_path / 'bag'
+    image_type = 'sensor_msgs/msg/CompressedImage'
+    Image, Header, Time = (ts.types[t] for t in (image_type, 'std_msgs/msg/Header',
+                                                 'builtin_interfaces/msg/Time'))
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections: dict[str, Any] = {}
+        camera = writer.add_connection('/camera', image_type, typestore=ts)
+        for k, (topic, msgtype, stamp, msg) in enumerate(
+                sorted(bag_messages(ts, s), key=lambda m: m[2])):
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(connections[topic], stamp, bytes(ts.serialize_cdr(msg, msgtype)))
+            if k % 20 == 0:    # a camera beside the radar: the file has many chunks
+                image = Image(Header(Time(stamp // 10**9, stamp % 10**9), 'camera'), 'jpeg',
+                              np.zeros(200_000, np.uint8))
+                writer.write(camera, stamp, bytes(ts.serialize_cdr(image, image_type)))
+    (bag / 'metadata.yaml').unlink()        # rosbag2 writes it at the end: never, here
     target = _storage_file(bag)
-    target.write_bytes(target.read_bytes()[:int(0.7 * target.stat().st_size)])
+    whole = target.read_bytes()
+    full = read_recording(bag, CalibConfig())
+    target.write_bytes(whole[:int(0.7 * len(whole))])
+    with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+        rec = read_recording(bag, CalibConfig())
+    assert 'cut short' in caplog.text and 'read up to the cut' in caplog.text
+    assert 0 < rec.counters['radar_frames'] <= full.counters['radar_frames']
+    np.testing.assert_array_equal(
+        rec.frame_stamps_ns, full.frame_stamps_ns[:rec.frame_stamps_ns.size])
+    target.write_bytes(whole[:len(whole) // 50])    # inside its first chunk
     with pytest.raises(BagReadError, match='reading bag') as info:
         read_recording(bag, CalibConfig())
     assert 'cut short' in str(info.value) and 'mcap recover' in str(info.value)
