@@ -12,6 +12,7 @@ empty or taken twice.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -22,6 +23,8 @@ from typing import Any
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import BagReadError, CalibrationError, exit_code
+
+_LOG = logging.getLogger(__name__)
 
 #: File name of the combined parameters file in the output directory.
 COMBINED_FILE = 'all_radars.yaml'
@@ -92,6 +95,12 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
         if (not _safe(name) or _safe(name) in map(_safe, names.values())
                 or list(found.values()).count(frame) > 1):
             name = _safe(topic)
+            # said: the result's radar_frame is then no frame the radar publishes in (a
+            # twenty-fifth probe's three radars all in 'radar' were renamed silently)
+            _LOG.warning('radar topic %s: its messages\' frame_id %r is %s, so its result is '
+                         'for frame %r; publish each radar in a frame of its own, or rename '
+                         'the frame in the result', topic, frame,
+                         'empty' if not frame.strip() else 'another radar\'s too', name)
         names[topic] = name
     return names
 

@@ -132,16 +132,22 @@ def test_all_radars_unwritable_output_exits_2_before_the_work(
 
 
 def test_radar_frames_are_the_messages_frames_made_unique(
-        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+        caplog: pytest.LogCaptureFixture) -> None:
     """A frame with '/' (carla-ros-bridge: 'ego_vehicle/radar_front') stays as TF has it in
     the results; only file names and parameter keys make it 'ego_vehicle_radar_front'
-    (a ninth probe's results named a frame no transform lookup would find)."""
+    (a ninth probe's results named a frame no transform lookup would find). A frame shared
+    or empty is replaced by the topic's name, and that is said."""
     found = {'/a/points': 'radar', '/b/points': 'radar', '/c/points': '', '/d/scan': 'x/y',
              '/e/scan': '/site/radar_e'}
     monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
-    names = radar_frames('unused')
+    with caplog.at_level('WARNING', logger='radar_calib_ros'):
+        names = radar_frames('unused')
     assert names == {'/a/points': 'a_points', '/b/points': 'b_points', '/c/points': 'c_points',
                      '/d/scan': 'x/y', '/e/scan': 'site/radar_e'}
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 3 and "frame_id 'radar' is another radar's too" in said[0]
+    assert "its result is for frame 'a_points'" in said[0] and "'' is empty" in said[2]
     from radar_calib_ros.multi_radar import RadarOutcome, write_outcomes
     cal = {k: 'x/y' if k == 'radar_frame' else k for k in TRANSFORM_KEYS}
     written = write_outcomes(tmp_path, [RadarOutcome('/d/scan', 'x/y', cal, None, 0)])
