@@ -1363,19 +1363,23 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
         Rotation.from_matrix(free.rotation @ kept.rotation.T).as_rotvec(),
         free.translation_m - kept.translation_m, [free.time_offset_s - kept.time_offset_s]])
     covariance = held.covariance + 0.25 * np.outer(difference, difference)
-    # The road plane is no surer of that tilt than the vehicle: the road users' reflections
-    # lie in it at heights that differ from lane to lane (traffic comes towards the radar
-    # on one side of the road showing its front, goes away on the other showing its rear),
-    # and across one road that height difference over the lanes' spread is its roll about
-    # the road. A twenty-fourth probe's radars beside one road: the plane 3 deg off in roll
-    # (8 of 8 runs), reported at 1.0-1.8. Held there, the fit's altitude and position follow
-    # that roll (targets metres below and beside the radar swing with it): a consider term
-    # of the vehicle's front/rear height difference (``refine.model_sigma_height_difference
-    # _m``) over twice the spread, rotating about the road through the radar.
+    # The road plane is no surer of that tilt where the road carries traffic both ways: the
+    # road users' reflections lie in it at heights that differ from lane to lane (traffic
+    # comes towards the radar on one side of the road showing its front, goes away on the
+    # other showing its rear), and that height difference over the lanes' separation is its
+    # roll about the road. A twenty-fourth probe's radars beside a two-way road: the plane
+    # 3 deg off in roll (8 of 8 runs), reported at 1.0-1.8; an eighteenth probe's one-way
+    # streets had it to 0.2 deg. Held there, the fit's altitude and position follow that
+    # roll (targets metres below and beside the radar swing with it): a consider term of the
+    # vehicle's front/rear height difference (``refine.model_sigma_height_difference_m``)
+    # over the separation of the two directions' lanes, rotating about the road through the
+    # radar.
     axis = held.diagnostics.get('line_axis')
     offset = held.diagnostics.get('target_offset_m')
-    if axis is not None and offset is not None:
-        roll = math.atan2(config.refine.model_sigma_height_difference_m, 2.0 * spread)
+    lanes = held.diagnostics.get('lane_separation_m')
+    if axis is not None and offset is not None and lanes is not None:
+        roll = math.atan2(config.refine.model_sigma_height_difference_m,
+                          max(lanes, _MIN_LANE_SEPARATION_M))
         swing = np.concatenate([axis, -np.cross(axis, offset), [0.0]])
         covariance = covariance + roll ** 2 * np.outer(swing, swing)
     diagnostics = dict(held.diagnostics)
@@ -1720,11 +1724,13 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     if recording.has_elevation and ground_normal is not None:
         diagnostics['tilt_from_plane_deg'] = math.degrees(float(np.linalg.norm(
             Rotation.from_matrix(tilt_anchor @ est.rotation.T).as_rotvec()[:2])))
-        world = model.geometry(x_hat)['world']
+        geometry = model.geometry(x_hat)
+        world = geometry['world']
         diagnostics['line_spread_m'] = _line_spread(world, data)
         axis, centre = _line_axis(world, data)
         diagnostics['line_axis'] = axis
         diagnostics['target_offset_m'] = centre - est.translation_m
+        diagnostics['lane_separation_m'] = _lane_separation(world, geometry['vel'], axis, data)
     if _noisy_azimuth(azimuth_noise, cfg.azimuth_sigma_deg):
         diagnostics['azimuth_noise_deg'] = azimuth_noise
         diagnostics['advice'] = [
@@ -2154,6 +2160,23 @@ def _line_axis(world: F64, data: _Selected) -> tuple[F64, F64]:
     return np.array([axes[0, 1], axes[1, 1], 0.0]), centre
 
 
+#: Least share of the information each direction along the road must hold to count.
+_DIRECTION_SHARE = 0.1
+
+
+def _lane_separation(world: F64, velocity: F64, axis: F64, data: _Selected) -> float | None:
+    """Distance [m] across the road ``axis`` between the mean positions of the targets
+    seen driving one way and those seen driving the other; None where one way holds less
+    than ``_DIRECTION_SHARE`` of the information (a one-way street)."""
+    weight = data.sqrt_weight ** 2
+    forward = velocity[:, :2] @ axis[:2] >= 0.0
+    if min(weight[forward].sum(), weight[~forward].sum()) < _DIRECTION_SHARE * weight.sum():
+        return None
+    lateral = world[:, :2] @ np.array([-axis[1], axis[0]])
+    return abs(float(np.average(lateral[forward], weights=weight[forward])
+                     - np.average(lateral[~forward], weights=weight[~forward])))
+
+
 def _position_spread(data: _Selected, poses: _Poses, offset_s: float) -> float:
     """RMS horizontal distance [m] of the vehicle positions behind the fit's targets from
     their information-weighted mean (at least a car length)."""
@@ -2289,6 +2312,9 @@ _TILT_PRIOR_DEG = 1.0
 _TILT_MOVED_DEG = 0.75
 _LINE_SPREAD_M = 5.0
 _HELD_TILT_DEG = 0.1
+#: Least separation [m] of the two directions' lanes the held plane's roll is judged over
+#: (two lanes of one carriageway a car's width apart at the least).
+_MIN_LANE_SEPARATION_M = 2.0
 #: Radius around the radar of the vehicle poses that show the road's tilt [m], the most a
 #: fix's declared vertical sigma may be [m], and the spread across the main direction of
 #: travel [m] below which only the grade along it is taken (one road: no cross slope).

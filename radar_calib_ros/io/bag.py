@@ -210,21 +210,28 @@ class _PlainReader:
         self._rosbag: Any = None
         files = _storage_files(path)
         self.connections: list[Any] = []
-        if files and all(f.suffix == '.db3' for f in files):
-            for n, file in enumerate(files):
-                db = sqlite3.connect(f'file:{file}?mode=ro', uri=True)
-                self._sqlite.append((db, {}))
-                rows = db.execute('SELECT topics.id, name, type, count(messages.id) FROM '
-                                  'topics LEFT JOIN messages ON messages.topic_id = topics.id '
-                                  'GROUP BY topics.id').fetchall()
-                for topic_id, name, msgtype, count in rows:
-                    topic = _Topic(int(topic_id), str(name), str(msgtype), int(count))
-                    self._sqlite[n][1][topic.id] = topic
-                    self.connections.append(topic)
-        else:
-            self._rosbag = Reader(path)
-            self._rosbag.open()
-            self.connections = list(self._rosbag.connections)
+        try:
+            if files and all(f.suffix == '.db3' for f in files):
+                for file in files:
+                    self._open_sqlite(file)
+            else:
+                self._rosbag = Reader(path)
+                self._rosbag.open()
+                self.connections = list(self._rosbag.connections)
+        except BaseException:
+            self.close()
+            raise
+
+    def _open_sqlite(self, file: Path) -> None:
+        db = sqlite3.connect(f'file:{file}?mode=ro', uri=True)
+        topics: dict[int, _Topic] = {}
+        self._sqlite.append((db, topics))
+        rows = db.execute('SELECT topics.id, name, type, count(messages.id) FROM topics LEFT '
+                          'JOIN messages ON messages.topic_id = topics.id GROUP BY topics.id')
+        for topic_id, name, msgtype, count in rows.fetchall():
+            topic = _Topic(int(topic_id), str(name), str(msgtype), int(count))
+            topics[topic.id] = topic
+            self.connections.append(topic)
 
     def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, bytes]]:
         wanted = list(connections)
@@ -246,7 +253,7 @@ class _PlainReader:
     def close(self) -> None:
         for db, _ in self._sqlite:
             db.close()
-        if self._rosbag is not None:
+        if self._rosbag is not None and self._rosbag.is_open:
             self._rosbag.close()
 
 
@@ -268,15 +275,19 @@ class _CutMcap:
         self._typestore = msgs.get_typestore()
         self._reader = McapReader(file)
         bio = self._reader.bio = file.open('rb')
-        size = file.stat().st_size
-        if bio.read(8) != _MCAP_MAGIC or bio.read(1) != b'\x01':
-            raise BagReadError(f'{str(file)!r} is not an MCAP file')
-        (length,) = struct.unpack('<Q', bio.read(8))
-        start = 17 + length
-        end = _whole_records_end(bio, start, size)
-        self.kept_fraction = (end - start) / max(size - start, 1)
-        self._reader.data_start, self._reader.data_end = start, end
-        self._reader.meta_scan()
+        try:
+            size = file.stat().st_size
+            if bio.read(8) != _MCAP_MAGIC or bio.read(1) != b'\x01':
+                raise BagReadError(f'{str(file)!r} is not an MCAP file')
+            (length,) = struct.unpack('<Q', bio.read(8))
+            start = 17 + length
+            end = _whole_records_end(bio, start, size)
+            self.kept_fraction = (end - start) / max(size - start, 1)
+            self._reader.data_start, self._reader.data_end = start, end
+            self._reader.meta_scan()
+        except BaseException:
+            self._reader.close()
+            raise
         statistics = self._reader.statistics
         counts = statistics.channel_message_counts if statistics is not None else {}
         self.connections: list[Any] = [c._replace(msgcount=counts.get(c.id, 0))

@@ -1436,7 +1436,7 @@ def test_line_spread_is_the_spread_across_the_road() -> None:
 
 
 def _fake_refinement(rotation_deg: float, altitude_m: float, moved_deg: float,
-                     spread_m: float) -> Any:
+                     spread_m: float, lanes_m: float | None = 3.6) -> Any:
     from radar_calib_ros.types import Refinement
     rot = Rotation.from_euler('xyz', [rotation_deg, 0.0, 30.0], degrees=True).as_matrix()
     return Refinement(Extrinsics(rot, np.array([1.0, 2.0, altitude_m]), 0.0),
@@ -1444,25 +1444,27 @@ def _fake_refinement(rotation_deg: float, altitude_m: float, moved_deg: float,
                       diagnostics={'tilt_from_plane_deg': moved_deg, 'line_spread_m': spread_m,
                                    'line_axis': np.array([1.0, 0.0, 0.0]),
                                    'target_offset_m': np.array([20.0, 3.0, -6.0]),
-                                   'advice': []})
+                                   'lane_separation_m': lanes_m, 'advice': []})
 
 
-@pytest.mark.parametrize('moved_deg, spread_m, held',
-                         [(2.5, 0.6, True), (2.5, 12.0, False), (0.3, 0.6, False)])
+@pytest.mark.parametrize('moved_deg, spread_m, held, lanes_m',
+                         [(2.5, 0.6, True, 3.6), (2.5, 0.6, True, None), (2.5, 12.0, False, 3.6),
+                          (0.3, 0.6, False, 3.6)])
 def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
         monkeypatch: pytest.MonkeyPatch, moved_deg: float, spread_m: float,
-        held: bool) -> None:
+        held: bool, lanes_m: float | None) -> None:
     """Fitted along one road, a tilt far from the road plane's is refitted held at the
-    plane, and the difference joins the covariance as its 2 sigma, with the plane's own
-    roll about the road (a lane-to-lane height difference over the spread) swinging the
-    position; a tilt near the plane, or views spread across the junction, keep the fit."""
+    plane, and the difference joins the covariance as its 2 sigma; on a two-way road with
+    the plane's own roll about the road (the front/rear height difference over the two
+    directions' lanes' separation) swinging the position. A tilt near the plane, or views
+    spread across the junction, keep the fit."""
     calls: list[float | None] = []
 
     def fake(*args: Any, tilt_prior_deg: float | None = None, **kwargs: Any) -> Any:
         calls.append(tilt_prior_deg)
         if tilt_prior_deg is None:
-            return _fake_refinement(2.5, 6.8, moved_deg, spread_m)
-        return _fake_refinement(0.0, 6.0, 0.0, spread_m)
+            return _fake_refinement(2.5, 6.8, moved_deg, spread_m, lanes_m)
+        return _fake_refinement(0.0, 6.0, 0.0, spread_m, lanes_m)
 
     monkeypatch.setattr(refine, '_refine', fake)
     config = dataclasses.replace(CalibConfig(), refine=dataclasses.replace(
@@ -1477,10 +1479,12 @@ def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
     assert calls == [None, refine._HELD_TILT_DEG]
     assert out.extrinsics.translation_m[2] == 6.0
     # half the difference is one sigma: 1.25 deg of tilt, 0.4 m of altitude; the plane's
-    # roll about the road (east): 0.1 m over twice the 0.6 m spread, 4.8 deg, swings the
-    # targets 3 m left and 6 m below the radar, so the radar 6x across and 3x down
-    roll = math.atan2(config.refine.model_sigma_height_difference_m, 2.0 * spread_m)
-    assert math.degrees(roll) == pytest.approx(4.76, abs=0.01)
+    # roll about the road (east) on a two-way road: 0.1 m over the lanes' 3.6 m, 1.6 deg,
+    # swings the targets 3 m left and 6 m below the radar, so the radar 6x across and 3x
+    # down; a one-way road: none
+    roll = 0.0 if lanes_m is None else math.atan2(
+        config.refine.model_sigma_height_difference_m, lanes_m)
+    assert math.degrees(roll) == pytest.approx(0.0 if lanes_m is None else 1.59, abs=0.01)
     tilt = math.sqrt(out.covariance[0, 0] + out.covariance[1, 1])
     assert math.degrees(tilt) == pytest.approx(
         math.hypot(1.25, math.degrees(roll), math.degrees(math.sqrt(2e-5))), rel=0.01)
@@ -1488,10 +1492,28 @@ def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
                                                             rel=0.02)
     assert math.sqrt(out.covariance[5, 5]) == pytest.approx(
         math.sqrt(0.4 ** 2 + 0.001 + (3 * roll) ** 2), rel=0.02)
-    assert out.covariance[0, 4] == pytest.approx(-6 * roll ** 2, rel=0.02)
+    assert out.covariance[0, 4] == pytest.approx(-6 * roll ** 2, rel=0.02, abs=1e-12)
     assert out.diagnostics['tilt_held']['moved_deg'] == moved_deg
     assert out.diagnostics['advice'][0].startswith('The vehicle was seen along one road only')
     assert out.diagnostics['sigma_vertical_m'] == pytest.approx(math.sqrt(out.covariance[5, 5]))
+
+
+def test_the_lanes_of_the_two_directions_are_measured_across_the_road() -> None:
+    """Targets along an east-west road, eastbound 1.75 m south of the centre line and
+    westbound 1.75 m north: 3.5 m apart; eastbound only (a one-way street): None."""
+    from types import SimpleNamespace
+    rng = np.random.default_rng(3)
+    n = 2000
+    east = np.arange(n) % 2 == 0
+    world = np.column_stack([rng.uniform(10, 80, n), np.where(east, -1.75, 1.75)
+                             + rng.normal(0, 0.4, n), rng.uniform(0, 1, n)])
+    velocity = np.column_stack([np.where(east, 10.0, -10.0), np.zeros(n), np.zeros(n)])
+    data = SimpleNamespace(sqrt_weight=np.ones(n))
+    axis = np.array([-1.0, 0.0, 0.0])     # either sign of the road's axis
+    separation = refine._lane_separation(world, velocity, axis, data)  # type: ignore
+    assert separation == pytest.approx(3.5, abs=0.05)
+    one_way = SimpleNamespace(sqrt_weight=np.where(east, 1.0, 0.01))
+    assert refine._lane_separation(world, velocity, axis, one_way) is None  # type: ignore
 
 
 def test_the_start_uncertainty_counts_only_where_the_data_leave_the_position_to_the_prior(
