@@ -137,6 +137,9 @@ class _StreamState:
     last_ns: int | None = None
     held: list[tuple[int, Sample]] = field(default_factory=list)
     awaiting_since: float | None = None
+    # a confirmed backward jump of this stream alone, held while the others continue
+    pending_since: float | None = None
+    seen_s: float | None = None
 
 
 class LiveCalibrator:
@@ -185,6 +188,11 @@ class LiveCalibrator:
         self._streams = {stream: _StreamState() for stream in STREAMS}
         self._oldest_ns: int | None = None
         self._newest_ns: int | None = None
+        # each stream's (oldest, newest) buffered stamp: the window is held per stream, as
+        # a radar's stamps may run on another clock than the vehicle's
+        self._ranges: dict[str, tuple[int, int]] = {}
+        # the frame of the buffered radar clouds (the first one's; see msgs.other_radar)
+        self._radar_frame: str | None = None
         self.counters: Counter[str] = Counter()
         self._throttle: dict[str, list[float]] = {}
         self._last_rejection_s = -math.inf
@@ -225,8 +233,13 @@ class LiveCalibrator:
             return False
         except Exception as err:  # noqa: BLE001 - see _internal_error
             return self._internal_error('radar', err)
-        mismatch = msgs.frame_id_mismatch(getattr(msg.header, 'frame_id', ''),
-                                          self._config.radar.frame_id)
+        frame_id = str(getattr(msg.header, 'frame_id', '') or '')
+        keep = msgs.radar_frame_to_keep(frame_id, self._radar_frame, self._config)
+        other = msgs.other_radar(frame_id, keep)
+        if other:
+            self._reject('radar', 'other_frame', other)
+            return False
+        mismatch = msgs.frame_id_mismatch(frame_id, self._config.radar.frame_id)
         if mismatch:
             self._warn('radar.frame_id', mismatch)
         if frame.dropped_nonfinite:
@@ -235,7 +248,10 @@ class LiveCalibrator:
                        f'NaN/inf target(s) of {frame.dropped_nonfinite + len(frame.positions_m)}'
                        ': those targets were dropped, the others kept')
             self._last_rejection_s = self._monotonic()
-        return self._accept('radar', frame.stamp_ns, frame)
+        accepted = self._accept('radar', frame.stamp_ns, frame)
+        if accepted:
+            self._radar_frame = keep
+        return accepted
 
     def on_navsat(self, msg: Any) -> bool:
         """Handle one sensor_msgs/NavSatFix (status < 0 is dropped and counted)."""
@@ -289,6 +305,16 @@ class LiveCalibrator:
         """Decide on one sample by its stamp (buffer lock held); returns what to buffer now
         as (stream, stamp, sample)."""
         state = self._streams[stream]
+        state.seen_s = self._monotonic()
+        if state.pending_since is None:
+            return self._admit_one(stream, state, stamp_ns, sample)
+        ended = self._pending(stream, state, stamp_ns, sample)
+        if ended is None:
+            return []
+        return ended + self._admit_one(stream, state, stamp_ns, sample)
+
+    def _admit_one(self, stream: str, state: _StreamState, stamp_ns: int,
+                   sample: Sample) -> list[tuple[str, int, Sample]]:
         if state.awaiting_since is not None:
             waited = self._monotonic() - state.awaiting_since
             if (waited <= AWAIT_RESTART_S and self._newest_ns is not None
@@ -311,6 +337,13 @@ class LiveCalibrator:
         state.held.append((stamp_ns, sample))
         if len(state.held) < CONFIRM_MESSAGES:
             return []
+        if stamp_ns < state.last_ns and self._others_continue(stream):
+            # the other streams go on: a bag looping makes them jump back too within
+            # moments; a step of this stream's clock alone (an NTP correction) or a burst
+            # of its old messages re-sent does not, and must not empty the buffer (a
+            # twenty-sixth probe: a radar clock stepped back 3 s lost the drive)
+            state.pending_since = self._monotonic()
+            return []
         held, state.held = state.held, []
         newest = max(stamp for stamp, _ in held)
         released = [(stream, stamp, item) for stamp, item in held]
@@ -321,6 +354,37 @@ class LiveCalibrator:
                        f'{(stamp_ns - state.last_ns) * 1e-9:.1f} s (an outage?): kept')
         state.last_ns = newest
         return released
+
+    def _others_continue(self, stream: str) -> bool:
+        """Whether another stream goes on on its clock: seen within AWAIT_RESTART_S and not
+        itself waiting on a jump of its own."""
+        now = self._monotonic()
+        return any(state.seen_s is not None and now - state.seen_s <= AWAIT_RESTART_S
+                   and state.pending_since is None and state.last_ns is not None
+                   for other, state in self._streams.items() if other != stream)
+
+    def _pending(self, stream: str, state: _StreamState, stamp_ns: int,
+                 sample: Sample) -> list[tuple[str, int, Sample]] | None:
+        """A message of a stream whose backward jump waits on the others (buffer lock
+        held): None while it goes on holding, else what it held, to buffer before this
+        message is decided on as any other."""
+        assert state.last_ns is not None and state.pending_since is not None
+        behind = stamp_ns < state.last_ns - BACKWARD_TOLERANCE_NS
+        if behind and state.held and _continues(state.held[-1][0], stamp_ns) and (
+                self._monotonic() - state.pending_since <= AWAIT_RESTART_S):
+            state.held.append((stamp_ns, sample))
+            return None
+        # The others never followed (or this stream is back where it was): its clock
+        # stepped back, or a burst of its old messages was re-sent; what it sent is kept,
+        # and so is the buffer (the build tells a step of the radar's clock by the receipts)
+        held, state.held, state.pending_since = state.held, [], None
+        if held:
+            jump_ns = state.last_ns - min(stamp for stamp, _ in held)
+            state.last_ns = max([stamp_ns, *(stamp for stamp, _ in held)])
+            self._warn(f'{stream}.step', f'{len(held)} {stream} message(s) stamped up to '
+                       f'{jump_ns * 1e-9:.1f} s back while the other streams went on (a clock '
+                       'correction, or old messages re-sent): kept, and the buffer too')
+        return [(stream, stamp, item) for stamp, item in held]
 
     def _drop_held(self, stream: str, state: _StreamState) -> None:
         if state.held:
@@ -344,6 +408,7 @@ class LiveCalibrator:
         for other, state in self._streams.items():
             if other == stream:
                 continue
+            state.pending_since = None
             if state.held and max(s for s, _ in state.held) <= (
                     newest_ns + self._cross_tolerance_ns()):
                 released += [(other, s, item) for s, item in state.held]
@@ -369,42 +434,56 @@ class LiveCalibrator:
         else:
             added = self._builder.add_odometry(sample)
         if added:
-            self._builder.note_receipt(stream, stamp_ns, self._now_ns())
+            now_ns = self._now_ns()
+            if _clock_set(now_ns, stamp_ns):
+                self._builder.note_receipt(stream, stamp_ns, now_ns)
+            else:
+                self.counters['receipts.clock_unset'] += 1
         self.counters[f'buffered.{stream}'] += 1
         if self._oldest_ns is None or self._newest_ns is None:
             self._oldest_ns = self._newest_ns = stamp_ns
         else:
             self._oldest_ns = min(self._oldest_ns, stamp_ns)
             self._newest_ns = max(self._newest_ns, stamp_ns)
+        lo, hi = self._ranges.get(stream, (stamp_ns, stamp_ns))
+        self._ranges[stream] = (min(lo, stamp_ns), max(hi, stamp_ns))
 
     def _enforce_bounds(self) -> None:
-        """Drop the oldest data beyond buffer.max_duration or buffer.max_memory_mb."""
-        if self._oldest_ns is None or self._newest_ns is None:
+        """Drop the oldest data beyond buffer.max_duration or buffer.max_memory_mb, each
+        stream by its own stamps: a radar on a clock of its own (an hour off, or counting
+        from its boot, with sync.time_offset saying so) had every frame dropped on arrival
+        by a window over all the streams' stamps (a twenty-sixth probe)."""
+        if not self._ranges:
             return
         cfg = self._config.buffer
         max_span_ns = int(cfg.max_duration * 1e9)
         slack_ns = max(int(1e9), int(max_span_ns * _DURATION_SLACK))
-        if self._newest_ns - self._oldest_ns > max_span_ns + slack_ns:
-            self._drop_before(self._newest_ns - max_span_ns, 'max_duration')
+        over = {stream: hi - max_span_ns for stream, (lo, hi) in self._ranges.items()
+                if hi - lo > max_span_ns + slack_ns}
+        for stream, cut_ns in over.items():
+            self._drop_before(cut_ns, 'max_duration', stream)
+        if over:
             self._warn('buffer.max_duration', f'buffer.max_duration ({cfg.max_duration:g} s) '
                        'reached: the oldest data are dropped from now on', severity='info')
         limit = cfg.max_memory_mb * 2**20
         nbytes = self._builder.nbytes()
         if nbytes > limit:
-            span = self._newest_ns - self._oldest_ns
             keep = _MEMORY_REFILL * limit / nbytes
-            self._drop_before(self._newest_ns - int(span * keep), 'max_memory')
+            span = max(hi - lo for lo, hi in self._ranges.values())
+            for stream, (lo, hi) in list(self._ranges.items()):
+                self._drop_before(hi - int((hi - lo) * keep), 'max_memory', stream)
             self._warn('buffer.max_memory', f'buffer.max_memory_mb ({cfg.max_memory_mb:g} MiB)'
                        f' reached at {span * 1e-9:.0f} s of data: the oldest data are dropped '
                        'from now on')
 
-    def _drop_before(self, stamp_ns: int, reason: str) -> None:
+    def _drop_before(self, stamp_ns: int, reason: str, stream: str | None = None) -> None:
         before = self._builder.sample_counts()
-        self._builder.drop_before(stamp_ns)
+        self._builder.drop_before(stamp_ns, stream)
         after = self._builder.sample_counts()
-        for stream, n_before, n_after in zip(STREAMS, before, after):
+        for name, n_before, n_after in zip(STREAMS, before, after):
             if n_before > n_after:
-                self.counters[f'dropped.{stream}.{reason}'] += n_before - n_after
+                self.counters[f'dropped.{name}.{reason}'] += n_before - n_after
+        self._ranges = self._builder.stamp_ranges_ns()
         stamps = self._builder.stamp_range_ns()
         self._oldest_ns, self._newest_ns = stamps if stamps else (None, None)
 
@@ -413,6 +492,8 @@ class LiveCalibrator:
         self._builder = RecordingBuilder(self._config)
         self._builder.counters = counters
         self._oldest_ns = self._newest_ns = None
+        self._ranges = {}
+        self._radar_frame = None
 
     # services ---------------------------------------------------------------------------
     def calibrate(self) -> TriggerOutcome:
@@ -614,8 +695,7 @@ class LiveCalibrator:
         with self._buffer_lock:
             frames, fixes, odoms = self._builder.sample_counts()
             targets = self._builder.counters['targets']
-            span = 0.0 if self._oldest_ns is None or self._newest_ns is None else (
-                (self._newest_ns - self._oldest_ns) * 1e-9)
+            span = max(((hi - lo) * 1e-9 for lo, hi in self._ranges.values()), default=0.0)
             nbytes = self._builder.nbytes()
         return {'radar_frames': frames, 'fixes': fixes, 'odometry': odoms,
                 'targets_received': targets, 'span_s': span, 'memory_mib': nbytes / 2**20}
@@ -720,6 +800,18 @@ class LiveCalibrator:
 
 
 # --- helpers -------------------------------------------------------------------------------
+
+#: 2000-01-01 [ns]: a node clock before it, with header stamps after it, is not set yet.
+_CLOCK_SET_NS = 946_684_800 * 10**9
+
+
+def _clock_set(now_ns: int, stamp_ns: int) -> bool:
+    """Whether the node's clock can time a message's receipt: a roadside host without a
+    battery-backed clock before NTP, or use_sim_time before the first /clock, reads 0 (a
+    twenty-sixth probe: such receipts read as every stream's stamps falling back by 55
+    years, and the build failed on them)."""
+    return now_ns > 0 and not now_ns < _CLOCK_SET_NS <= stamp_ns
+
 
 def _continues(last_ns: int, stamp_ns: int) -> bool:
     """True when a stamp follows the previous one of its stream without a jump."""

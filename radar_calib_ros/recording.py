@@ -315,28 +315,39 @@ class RecordingBuilder:
         self._nbytes += _ODOM_OVERHEAD_BYTES
         return True
 
-    def drop_before(self, stamp_ns: int) -> int:
-        """Drop every sample stamped before ``stamp_ns``; returns how many were dropped."""
-        keep_f = [i for i, s in enumerate(self._frame_stamps) if s >= stamp_ns]
-        dropped = len(self._frame_stamps) - len(keep_f)
-        if dropped:
-            self._frame_stamps = [self._frame_stamps[i] for i in keep_f]
-            self._frame_positions = [self._frame_positions[i] for i in keep_f]
-            self._frame_velocities = [self._frame_velocities[i] for i in keep_f]
-        n_fix = len(self._fixes)
-        self._fixes = [f for f in self._fixes if f[0] >= stamp_ns]
-        n_odom = len(self._odoms)
-        self._odoms = [o for o in self._odoms if o[0] >= stamp_ns]
-        # receipts go with their samples (received - lag is the header stamp)
-        keep = _receipts_from(stamp_ns, self._radar_lag, self._radar_received)
-        self._radar_lag = [self._radar_lag[i] for i in keep]
-        self._radar_received = [self._radar_received[i] for i in keep]
-        keep = _receipts_from(stamp_ns, self._pose_lag, self._pose_received)
-        self._pose_lag = [self._pose_lag[i] for i in keep]
-        self._pose_received = [self._pose_received[i] for i in keep]
-        self._pose_is_fix = [self._pose_is_fix[i] for i in keep]
+    def drop_before(self, stamp_ns: int, role: str | None = None) -> int:
+        """Drop every sample stamped before ``stamp_ns`` (of one ``role``, 'radar', 'navsat'
+        or 'odom', where given: each stream's stamps may run on a clock of its own); returns
+        how many were dropped."""
+        dropped = 0
+        if role in (None, 'radar'):
+            keep_f = [i for i, s in enumerate(self._frame_stamps) if s >= stamp_ns]
+            dropped += len(self._frame_stamps) - len(keep_f)
+            if len(keep_f) < len(self._frame_stamps):
+                self._frame_stamps = [self._frame_stamps[i] for i in keep_f]
+                self._frame_positions = [self._frame_positions[i] for i in keep_f]
+                self._frame_velocities = [self._frame_velocities[i] for i in keep_f]
+            # receipts go with their samples (received - lag is the header stamp)
+            keep = _receipts_from(stamp_ns, self._radar_lag, self._radar_received)
+            self._radar_lag = [self._radar_lag[i] for i in keep]
+            self._radar_received = [self._radar_received[i] for i in keep]
+        if role in (None, 'navsat'):
+            n_fix = len(self._fixes)
+            self._fixes = [f for f in self._fixes if f[0] >= stamp_ns]
+            dropped += n_fix - len(self._fixes)
+        if role in (None, 'odom'):
+            n_odom = len(self._odoms)
+            self._odoms = [o for o in self._odoms if o[0] >= stamp_ns]
+            dropped += n_odom - len(self._odoms)
+        if role != 'radar':
+            keep = [i for i, (lag, rec, is_fix) in enumerate(zip(
+                self._pose_lag, self._pose_received, self._pose_is_fix))
+                if rec - lag >= stamp_ns or (role is not None and is_fix != (role == 'navsat'))]
+            self._pose_lag = [self._pose_lag[i] for i in keep]
+            self._pose_received = [self._pose_received[i] for i in keep]
+            self._pose_is_fix = [self._pose_is_fix[i] for i in keep]
         self._nbytes = self._count_nbytes()
-        return dropped + n_fix - len(self._fixes) + n_odom - len(self._odoms)
+        return dropped
 
     def clear(self) -> None:
         """Forget every sample and counter."""
@@ -352,9 +363,15 @@ class RecordingBuilder:
 
     def stamp_range_ns(self) -> tuple[int, int] | None:
         """Earliest and latest stamp of any buffered sample."""
-        stamps = self._frame_stamps + [f[0] for f in self._fixes] + [
-            int(o[0]) for o in self._odoms]
-        return (min(stamps), max(stamps)) if stamps else None
+        ranges = self.stamp_ranges_ns().values()
+        return (min(lo for lo, _ in ranges), max(hi for _, hi in ranges)) if ranges else None
+
+    def stamp_ranges_ns(self) -> dict[str, tuple[int, int]]:
+        """Earliest and latest stamp of each role ('radar', 'navsat', 'odom') that holds
+        samples."""
+        stamps = {'radar': self._frame_stamps, 'navsat': [int(f[0]) for f in self._fixes],
+                  'odom': [int(o[0]) for o in self._odoms]}
+        return {role: (min(s), max(s)) for role, s in stamps.items() if s}
 
     def nbytes(self) -> int:
         """Approximate memory held by the buffered samples [bytes] (O(1): kept current)."""
@@ -1166,8 +1183,11 @@ def _window_quadratics(t: F64, values: F64, k: int, origin: F64
     vw = np.lib.stride_tricks.sliding_window_view(values, k, axis=0).transpose(0, 2, 1)
     dt = tw - origin[:, None]
     design = np.stack([np.ones_like(dt), dt, dt ** 2], axis=2)
-    coef = np.linalg.solve(np.einsum('wki,wkj->wij', design, design),
-                           np.einsum('wki,wkd->wid', design, vw))
+    gram = np.einsum('wki,wkj->wij', design, design)
+    # a window of samples at fewer than three times fits no quadratic (a stream whose
+    # stamps were moved onto one instant): the identity keeps it solvable
+    gram[(np.diff(tw, axis=1) != 0.0).sum(axis=1) < 2] += np.eye(3)
+    coef = np.linalg.solve(gram, np.einsum('wki,wkd->wid', design, vw))
     return vw, design, coef
 
 

@@ -160,6 +160,7 @@ def consistent(live: LiveCalibrator) -> None:
         assert frames + fixes + odoms == 0
     else:
         assert (live._oldest_ns, live._newest_ns) == stamps
+        assert live._ranges == builder.stamp_ranges_ns()
 
 
 # --- the buffer --------------------------------------------------------------------------
@@ -214,6 +215,52 @@ def test_the_nodes_clock_names_radar_stamps_off_the_poses(tmp_path: Path, store:
     assert saved.success, saved.message
     again = read_recording(tmp_path / 'saved', live.config)
     assert again.counters['radar_stamp_offset_ms'] == pytest.approx(7000, abs=10)
+    consistent(live)
+
+
+@pytest.mark.parametrize('radar_ahead_s', [3600.0, -3600.0, -1_690_000_000.0])
+def test_the_window_holds_each_stream_by_its_own_stamps(
+        tmp_path: Path, store: Any, radar_ahead_s: float) -> None:
+    """A radar on a clock of its own (an hour off, or counting from its boot), with
+    sync.time_offset saying so: buffer.max_duration keeps the newest 5 s of every stream,
+    where a window over all the streams' stamps dropped the radar (or the poses) on
+    arrival (a twenty-sixth probe: 'no radar frame in the recording')."""
+    live, _ = make_live(tmp_path, **{'buffer.max_duration': 5.0,
+                                     'sync.time_offset': -radar_ahead_s})
+    ahead = int(radar_ahead_s * 1e9)
+    for i in range(20 * 50):                 # 20 s: poses at 50 Hz, the radar at 10 Hz
+        stamp = T0_NS + i * 20_000_000
+        live.on_navsat(fix_msg(store, stamp, i))
+        live.on_odometry(odom_msg(store, stamp))
+        if i % 5 == 0:
+            live.on_radar(radar_msg(store, stamp + ahead, 5, seed=i))
+    frames, fixes, odoms = live._builder.sample_counts()
+    assert 50 <= frames <= 61 and 250 <= fixes <= 301 and 250 <= odoms <= 301
+    assert live.counters['dropped.radar.max_duration'] == 200 - frames
+    assert 5.0 <= live.buffer_stats()['span_s'] <= 6.0
+    consistent(live)
+
+
+def test_an_unset_node_clock_times_no_receipt(tmp_path: Path, store: Any) -> None:
+    """The node's clock at 0 (use_sim_time before the first /clock; a host without a
+    real-time clock before NTP) for the first 150 messages: their receipts are not taken,
+    and the recording builds (it failed: 'Singular matrix', after 'every stream's stamps
+    fall back by 1750000000 s')."""
+    now = [0]
+    live = LiveCalibrator(CalibConfig.from_mapping({
+        'output.path': str(tmp_path / 'result.yaml')}), log=LogRecorder(), run=fake_run(),
+        monotonic=FakeClock(), now_ns=lambda: now[0])
+    for i in range(20 * 50):
+        stamp = T0_NS + i * 20_000_000
+        now[0] = 0 if i < 50 else stamp + 5_000_000
+        live.on_navsat(fix_msg(store, stamp, i))
+        live.on_odometry(odom_msg(store, stamp))
+        if i % 5 == 0:
+            live.on_radar(radar_msg(store, stamp, 5, seed=i))
+    assert live.counters['receipts.clock_unset'] == 50 * 2 + 10
+    recording = live._builder.snapshot().build()
+    assert recording.counters['radar_frames'] == 200
+    assert 'radar_stamp_jump_ms' not in recording.counters
     consistent(live)
 
 
@@ -376,18 +423,92 @@ def test_bag_replayed_in_a_loop_starts_a_new_recording(tmp_path: Path, store: An
     consistent(live)
 
 
-def test_stale_messages_of_another_stream_after_a_restart(tmp_path: Path, store: Any) -> None:
+def test_a_stream_that_loops_first_waits_for_the_others(tmp_path: Path, store: Any) -> None:
+    """The radar loops first: its new stamps are held while the poses still come from the
+    end of the previous loop (kept); once the poses loop too, a new recording starts with
+    the radar's held frames in it."""
     live, _ = make_live(tmp_path)
     feed(live, store, 6.0)
     back = T0_NS
     for i in range(CONFIRM_MESSAGES):  # radar loops first ...
         live.on_radar(radar_msg(store, back + i * 66_666_667))
+    assert live.counters['restarts'] == 0 and live._streams['radar'].pending_since is not None
+    # ... while the fixes and odometry still come from the end of the previous loop
+    assert live.on_navsat(fix_msg(store, T0_NS + 5_990_000_000))
+    assert live.on_odometry(odom_msg(store, T0_NS + 5_990_000_001))
+    for i in range(CONFIRM_MESSAGES):  # now they loop too
+        live.on_navsat(fix_msg(store, back + i * 20_000_000, i))
+        live.on_odometry(odom_msg(store, back + i * 20_000_000 + 1))
     assert live.counters['restarts'] == 1
-    # ... while the fixes still come from the end of the previous loop
-    assert not live.on_navsat(fix_msg(store, T0_NS + 5_990_000_000))
-    assert live.counters['rejected.navsat.stale'] == 1
-    assert live.on_navsat(fix_msg(store, back + 10_000_000))  # now it looped too
-    assert live.buffer_stats()['fixes'] == 1 and live.counters['restarts'] == 1
+    stats = live.buffer_stats()
+    assert (stats['radar_frames'], stats['fixes'], stats['odometry']) == (
+        CONFIRM_MESSAGES, CONFIRM_MESSAGES, CONFIRM_MESSAGES)
+    consistent(live)
+
+
+@pytest.mark.parametrize('resent', [False, True])
+def test_a_radar_clock_step_or_old_frames_resent_keep_the_buffer(
+        tmp_path: Path, store: Any, resent: bool) -> None:
+    """The radar's stamps alone go 3 s back (an NTP correction) while the poses go on, or a
+    driver re-sends three old frames: the buffer is kept, and so are the radar's frames
+    (a twenty-sixth probe: the buffer was emptied, the drive lost)."""
+    clock = FakeClock()
+    live, log = make_live(tmp_path, clock=clock)
+    feed(live, store, 6.0)
+    before = live.buffer_stats()
+    step = 3 * 10**9
+    for i in range(60):               # 1.2 s of poses at 50 Hz, the radar at about 17 Hz
+        stamp = T0_NS + 6 * 10**9 + i * 20_000_000
+        clock.t += 0.02
+        live.on_navsat(fix_msg(store, stamp, i))
+        live.on_odometry(odom_msg(store, stamp + 1))
+        if i % 3 == 0:
+            radar_stamp = stamp - step if not resent or i < 3 * CONFIRM_MESSAGES else stamp
+            live.on_radar(radar_msg(store, radar_stamp, 5, seed=i))
+    if not resent:                    # the others never follow: the step is kept
+        clock.t += 11.0
+        live.on_radar(radar_msg(store, T0_NS + 7_300_000_000 - step, 5))
+    assert live.counters['restarts'] == 0
+    stats = live.buffer_stats()
+    assert stats['radar_frames'] == before['radar_frames'] + (21 if not resent else 20)
+    assert stats['fixes'] == before['fixes'] + 60
+    assert log.count('while the other streams went on') == 1
+    consistent(live)
+
+
+def test_a_second_radar_on_the_topic_is_named_and_left_out(
+        tmp_path: Path, store: Any) -> None:
+    """Two radars published on the one topic the node subscribes to: the clouds of the
+    frame not first seen are rejected and named (they were mixed in, and the failure
+    blamed other traffic); after a reset the first frame seen is the radar again."""
+    live, log = make_live(tmp_path)
+    rng = np.random.default_rng(0)
+    for i in range(30):
+        frame = 'radar_a' if i % 2 == 0 else '/radar_b'
+        live.on_radar(msgs.encode_pointcloud(store, T0_NS + i * 50_000_000, frame,
+                                             rng.uniform(5, 50, (5, 3)), np.ones(5)))
+    assert live.buffer_stats()['radar_frames'] == 15
+    assert live.counters['rejected.radar.other_frame'] == 15
+    assert log.count("clouds in frame 'radar_b' as well as in 'radar_a'") == 1
+    live.reset()
+    live.on_radar(msgs.encode_pointcloud(store, T0_NS + 10**10, 'radar_b',
+                                         rng.uniform(5, 50, (5, 3)), np.ones(5)))
+    assert live.buffer_stats()['radar_frames'] == 1
+    consistent(live)
+
+
+def test_of_two_radars_on_the_topic_the_one_radar_frame_id_names_is_kept(
+        tmp_path: Path, store: Any) -> None:
+    """radar.frame_id set to the radar whose clouds come second: from its first cloud
+    on, the other's are rejected (one of them was buffered before)."""
+    live, _ = make_live(tmp_path, **{'radar.frame_id': 'radar_b'})
+    rng = np.random.default_rng(1)
+    for i in range(30):
+        frame = 'radar_a' if i % 2 == 0 else 'radar_b'
+        live.on_radar(msgs.encode_pointcloud(store, T0_NS + i * 50_000_000, frame,
+                                             rng.uniform(5, 50, (5, 3)), np.ones(5)))
+    assert live.buffer_stats()['radar_frames'] == 16
+    assert live.counters['rejected.radar.other_frame'] == 14
     consistent(live)
 
 

@@ -1660,3 +1660,19 @@ def test_fix_outages_do_not_read_as_an_odometry_speed_error() -> None:
     assert 'odometry_speed_scale_permille' not in rec.counters
     measured = np.hypot(*rec.vehicle.velocities_mps[:, :2].T)
     assert np.median(np.abs(measured / 8.0 - 1.0)) < 0.002
+
+
+def test_windows_of_samples_at_one_time_fit_without_failing() -> None:
+    """Fixes moved onto a few instants (a stream whose stamps fell back at once) leave
+    windows of fewer than three times: the quadratics stay solvable and finite, and the
+    regular windows are fitted exactly."""
+    from radar_calib_ros.recording import _window_quadratics
+    t = np.concatenate([np.zeros(5), np.full(5, 1.0), np.arange(2.0, 12.0)])
+    values = np.column_stack([3.0 + 2.0 * t + 0.5 * t ** 2, np.zeros(t.size)])
+    k = 5
+    origin = np.lib.stride_tricks.sliding_window_view(t, k)[:, 2]
+    _, _, coef = _window_quadratics(t, values, k, origin)
+    assert np.isfinite(coef).all()
+    regular = np.lib.stride_tricks.sliding_window_view(t, k)[:, 0] >= 2.0
+    expected = 3.0 + 2.0 * origin + 0.5 * origin ** 2
+    np.testing.assert_allclose(coef[regular, 0, 0], expected[regular], rtol=1e-9)

@@ -541,7 +541,18 @@ def read_recording(path: str | Path, config: CalibConfig, *,
         velocity_field = config.radar.velocity_field
         done = 0
         first_error: DecodeError | None = None
+        radar_frame: str | None = None
+        other_radar: str | None = None
         for connection, received_ns, msg in _messages(reader, connections, path):
+            if roles[connection.topic] == 'radar':
+                frame_id = str(getattr(msg.header, 'frame_id', '') or '')
+                keep = msgs.radar_frame_to_keep(frame_id, radar_frame, config)
+                other = msgs.other_radar(frame_id, keep)
+                if other:
+                    builder.counters['radar_other_frame'] += 1
+                    other_radar = other_radar or other
+                    continue
+                radar_frame = keep
             try:
                 added = _add_message(builder, roles[connection.topic], connection, msg,
                                      velocity_field)
@@ -559,6 +570,9 @@ def read_recording(path: str | Path, config: CalibConfig, *,
                 progress(done, total)
         if progress is not None:
             progress(done, total)
+    if other_radar is not None:
+        _LOG.warning('%s (%d clouds skipped)', other_radar,
+                     builder.counters['radar_other_frame'])
     if first_error is not None:
         if builder.n_frames == 0:
             raise first_error

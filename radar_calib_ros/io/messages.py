@@ -23,6 +23,7 @@ from radar_calib_ros.errors import DecodeError
 from radar_calib_ros.types import FixSample, OdomSample, RadarFrame
 
 if TYPE_CHECKING:
+    from radar_calib_ros.config import CalibConfig
     from numpy.typing import ArrayLike, DTypeLike
     from rosbags.typesys.store import Typestore
 
@@ -130,6 +131,33 @@ def frame_id_mismatch(header_frame_id: str, configured: str) -> str | None:
     return (f"the radar's messages are in frame '{cloud}' but radar.frame_id is "
             f"'{configured}': the calibration is published for '{configured}'; set "
             f"radar.frame_id: {cloud} so that TF consumers of the cloud find it")
+
+
+def radar_frame_to_keep(header_frame_id: str, kept: str | None,
+                        config: CalibConfig) -> str | None:
+    """The frame of the radar clouds a topic's reader keeps, after one more cloud in
+    ``header_frame_id``: the first frame seen (``kept``), or ``radar.frame_id`` once a
+    cloud in it arrives where the parameters set it (so a topic of two radars gives the
+    one the parameters name)."""
+    cloud = str(header_frame_id or '').lstrip('/')
+    configured = config.radar.frame_id.lstrip('/')
+    if 'radar.frame_id' in config.explicit and cloud == configured:
+        return configured
+    return kept or cloud or None
+
+
+def other_radar(header_frame_id: str, first_frame_id: str | None) -> str | None:
+    """Where the radar topic's clouds are in another frame than the one kept
+    (``radar_frame_to_keep``; two radars published on one topic): a warning naming both,
+    else None. The node and the bag reader skip the other radar's clouds (a twenty-sixth
+    probe's two radars on one topic failed as 'another vehicle kept pace with it')."""
+    cloud = str(header_frame_id or '').lstrip('/')
+    first = str(first_frame_id or '').lstrip('/')
+    if not cloud or not first or cloud == first:
+        return None
+    return (f"the radar topic carries clouds in frame '{cloud}' as well as in '{first}' (two "
+            f"radars on one topic?): only those in '{first}' are used (radar.frame_id, or "
+            'the first seen); publish each radar on a topic of its own')
 
 
 def _field_table(fields: Sequence[Any]) -> dict[str, tuple[int, int]]:

@@ -460,6 +460,32 @@ def test_a_vendor_topic_with_a_broken_definition_leaves_the_rest_readable(
     assert radar_topics(path) == ['/radar/points']
 
 
+def test_a_second_radar_on_the_topic_is_skipped_and_named(
+        tmp_path: Path, ts: Any, caplog: pytest.LogCaptureFixture) -> None:
+    """Two radars' clouds on one topic (frames radar_a and radar_b): those of the frame
+    not first seen are skipped, counted and named, as the node does."""
+    s = scene()
+
+    def two_radars() -> Iterator[Item]:
+        for k, (topic, msgtype, stamp, msg) in enumerate(bag_messages(ts, s)):
+            if msgtype == m.POINTCLOUD2 and k % 2:
+                msg.header.frame_id = 'radar_b'
+            elif msgtype == m.POINTCLOUD2:
+                msg.header.frame_id = 'radar_a'
+            yield topic, msgtype, stamp, msg
+    bag = tmp_path / 'two'
+    write_bag(bag, two_radars(), storage='mcap', typestore=ts)
+    with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+        rec = read_recording(bag, CalibConfig())
+    n = len(s['frames'])
+    assert rec.counters['radar_frames'] == (n + 1) // 2
+    assert rec.counters['radar_other_frame'] == n // 2
+    assert "clouds in frame 'radar_b' as well as in 'radar_a'" in caplog.text
+    # the one radar.frame_id names, from its first cloud on
+    named = read_recording(bag, CalibConfig.from_mapping({'radar.frame_id': 'radar_b'}))
+    assert named.counters['radar_frames'] == n // 2 + 1
+
+
 def test_an_unclosed_write_ahead_log_is_read(tmp_path: Path, good_bags: dict[str, Path],
                                              caplog: pytest.LogCaptureFixture) -> None:
     """A sqlite3 recording whose last messages are still in its write-ahead log (rosbag2
