@@ -15,12 +15,16 @@ being buffered meanwhile. ``_calibration_lock`` refuses a second concurrent ``ca
 
 Stamps that jump backwards (a bag replayed in a loop, a restarted driver): **treated as a
 new recording**. When one stream's header stamps go back by more than
-``BACKWARD_TOLERANCE_NS`` and ``CONFIRM_MESSAGES`` consecutive messages agree, the buffer
-is emptied and refilled from the new stamps on; messages of the other streams still
-stamped in the old recording are rejected as ``stale`` until their own stream has jumped
-back too. Rejecting the stale data instead would freeze the node for good at the first
-loop of a replayed bag (every later message would be older than the newest buffered one),
-so the latest loop is kept: a calibration triggered after a full loop calibrates on it.
+``BACKWARD_TOLERANCE_NS`` and ``CONFIRM_MESSAGES`` consecutive messages agree, its new
+messages are held while another stream goes on on its old stamps (up to
+``AWAIT_RESTART_S``); once none does (the others jumped too, or went silent), the buffer is
+emptied and refilled from the new stamps on; messages of the other streams still stamped
+in the old recording are rejected as ``stale`` until their own stream has jumped back too.
+Where the others go on and never jump, the stream's clock stepped (or it re-sent old
+messages): what it held is buffered and the buffer kept. Rejecting the stale data
+instead would freeze the node for good at the first loop of a replayed bag (every later
+message would be older than the newest buffered one), so the latest loop is kept: a
+calibration triggered after a full loop calibrates on it.
 A single message stamped far off (a corrupt stamp) is not believed: it is held until
 confirmed and otherwise rejected as ``stamp_outlier``, so one bad stamp can neither empty
 the buffer nor push the ``buffer.max_duration`` window past the real data.
@@ -528,6 +532,11 @@ class LiveCalibrator:
             calibration = result.calibration(config)
         except CalibrationError as err:
             reason = err.reason if isinstance(err, InsufficientDataError) else str(err)
+            # what the node refused on arrival is often the cause (every radar stamp 0, a
+            # wrong radar.velocity_field): said with the reason (a twenty-sixth probe read
+            # only 'no radar frame in the recording')
+            losses = self._losses()
+            reason += f' (messages the node refused or dropped: {losses})' if losses else ''
             self._failure = reason
             self._log('error', f'calibration failed: {reason} (buffer: {frames} radar frames, '
                       f'{fixes} fixes, {odoms} odometry samples)')
@@ -754,6 +763,13 @@ class LiveCalibrator:
                                       self._config.radar.frame_id, tuple(values))
 
     # reporting --------------------------------------------------------------------------
+    def _losses(self, most: int = 4) -> str:
+        """The largest counts of messages refused or dropped since the start, e.g.
+        'radar.no_stamp 5651, radar.max_duration 20'."""
+        lost = sorted(((n, k.split('.', 1)[1]) for k, n in self.counters.items()
+                       if k.startswith(('rejected.', 'dropped.')) and n > 0), reverse=True)
+        return ', '.join(f'{name} {n}' for n, name in lost[:most])
+
     def _reject(self, stream: str, kind: str, message: str, count: int = 1) -> None:
         self.counters[f'rejected.{stream}.{kind}'] += count
         self._last_rejection_s = self._monotonic()

@@ -728,9 +728,11 @@ class RecordingBuilder:
                 found = np.isfinite(dist)
                 found[found] &= np.abs(vb[fast_b][found] - va[fast_a][near[found]]) < 0.5
                 if found.any():
-                    shifts.append((np.linalg.norm(pb[found], axis=1)
-                                   - np.linalg.norm(pa[near[found]], axis=1))
-                                  / vb[fast_b][found])
+                    # corrupt clouds can hold finite but absurd ranges (1e308 m): inf there
+                    with np.errstate(over='ignore', invalid='ignore'):
+                        shifts.append((np.linalg.norm(pb[found], axis=1)
+                                       - np.linalg.norm(pa[near[found]], axis=1))
+                                      / vb[fast_b][found])
         if sum(d.size for d in shifts) < _SHIFT_MIN_PAIRS:
             return False
         return abs(float(np.median(np.concatenate(shifts)))) >= _SHIFT_SHARE * interval_ns * 1e-9

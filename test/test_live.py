@@ -476,23 +476,29 @@ def test_a_radar_clock_step_or_old_frames_resent_keep_the_buffer(
     consistent(live)
 
 
+def _two_radars_on_one_topic(live: LiveCalibrator, store: Any,
+                             second: str = 'radar_b') -> None:
+    """Thirty clouds on the node's one radar topic, radar_a's and ``second``'s in turn."""
+    rng = np.random.default_rng(0)
+    for i in range(30):
+        live.on_radar(msgs.encode_pointcloud(store, T0_NS + i * 50_000_000,
+                                             'radar_a' if i % 2 == 0 else second,
+                                             rng.uniform(5, 50, (5, 3)), np.ones(5)))
+
+
 def test_a_second_radar_on_the_topic_is_named_and_left_out(
         tmp_path: Path, store: Any) -> None:
     """Two radars published on the one topic the node subscribes to: the clouds of the
     frame not first seen are rejected and named (they were mixed in, and the failure
     blamed other traffic); after a reset the first frame seen is the radar again."""
     live, log = make_live(tmp_path)
-    rng = np.random.default_rng(0)
-    for i in range(30):
-        frame = 'radar_a' if i % 2 == 0 else '/radar_b'
-        live.on_radar(msgs.encode_pointcloud(store, T0_NS + i * 50_000_000, frame,
-                                             rng.uniform(5, 50, (5, 3)), np.ones(5)))
+    _two_radars_on_one_topic(live, store, second='/radar_b')
     assert live.buffer_stats()['radar_frames'] == 15
     assert live.counters['rejected.radar.other_frame'] == 15
     assert log.count("clouds in frame 'radar_b' as well as in 'radar_a'") == 1
     live.reset()
     live.on_radar(msgs.encode_pointcloud(store, T0_NS + 10**10, 'radar_b',
-                                         rng.uniform(5, 50, (5, 3)), np.ones(5)))
+                                         np.full((5, 3), 9.0), np.ones(5)))
     assert live.buffer_stats()['radar_frames'] == 1
     consistent(live)
 
@@ -502,11 +508,7 @@ def test_of_two_radars_on_the_topic_the_one_radar_frame_id_names_is_kept(
     """radar.frame_id set to the radar whose clouds come second: from its first cloud
     on, the other's are rejected (one of them was buffered before)."""
     live, _ = make_live(tmp_path, **{'radar.frame_id': 'radar_b'})
-    rng = np.random.default_rng(1)
-    for i in range(30):
-        frame = 'radar_a' if i % 2 == 0 else 'radar_b'
-        live.on_radar(msgs.encode_pointcloud(store, T0_NS + i * 50_000_000, frame,
-                                             rng.uniform(5, 50, (5, 3)), np.ones(5)))
+    _two_radars_on_one_topic(live, store)
     assert live.buffer_stats()['radar_frames'] == 16
     assert live.counters['rejected.radar.other_frame'] == 14
     consistent(live)
@@ -692,6 +694,18 @@ def test_calibrate_failure_reports_the_reason_and_keeps_the_file(tmp_path: Path,
     status = live.diagnostics()[0]
     assert status.level == 'ERROR' and 'seen in 1 pass' in status.message
     assert log.count('calibration failed') == 1
+
+
+def test_a_failure_names_what_the_node_refused(tmp_path: Path, store: Any) -> None:
+    """Every radar scan without a header stamp: the failure says 'no radar frame' and
+    what the node refused on arrival, the cause."""
+    live, _ = make_live(tmp_path)
+    for i in range(20):
+        live.on_radar(radar_msg(store, 0, 5, seed=i))
+        live.on_navsat(fix_msg(store, T0_NS + i * 10**8, i))
+    outcome = live.calibrate()
+    assert not outcome.success and 'no radar frame' in outcome.message
+    assert '(messages the node refused or dropped: radar.no_stamp 20)' in outcome.message
 
 
 def test_calibrate_on_an_empty_buffer(tmp_path: Path) -> None:
