@@ -1549,6 +1549,12 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
     for received in (radar_received, pose_received):
         if received is not None and np.unique(received).size < _RECEIPT_DISTINCT * received.size:
             return out
+    # nor do receipts that pass at another pace than the stamps (a bag replayed faster than
+    # it was recorded, without use_sim_time; messages fed as fast as they decode)
+    if pose_received is not None and pose_received.size > 1:
+        stamp_span = float(np.ptp(pose_received - pose_lag))
+        if not 0.5 * stamp_span <= float(np.ptp(pose_received)) <= 2.0 * stamp_span:
+            return out
     offset_ns = float(np.median(pose_lag) - np.median(radar_lag))
     out['radar_stamp_offset_ms'] = int(round(offset_ns / 1e6))
     step = _radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)

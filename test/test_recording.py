@@ -747,6 +747,16 @@ def test_receipt_times_show_a_radar_clock_offset_and_a_jump() -> None:
     assert _receipt_checks(flat - stamps, flat, pose_lag) == {}
     pose_flat = np.full(3000, received[-1])
     assert _receipt_checks(jumped, received, pose_lag, pose_flat) == {}
+    # receipts at ten times the stamps' pace (a bag played at --rate 10 without
+    # use_sim_time): not judged either; at the stamps' pace, judged
+    t0 = 10**18
+    pose_stamps = t0 + np.arange(3000, dtype=np.int64) * 20_000_000
+    fast = t0 + (pose_stamps - t0) // 10
+    assert _receipt_checks(jumped, received, fast - pose_stamps, fast) == {}
+    paced = pose_stamps + 5_000_000
+    radar_received = t0 + received
+    assert 'radar_stamp_jump_ms' in _receipt_checks(jumped, radar_received,
+                                                    paced - pose_stamps, paced)
 
 
 def test_an_odometry_on_a_clock_of_its_own_is_left_out_and_the_radar_judged_by_the_fixes(
