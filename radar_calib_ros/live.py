@@ -190,8 +190,6 @@ class LiveCalibrator:
         self._calibration_lock = threading.Lock()
         self._builder = RecordingBuilder(config)
         self._streams = {stream: _StreamState() for stream in STREAMS}
-        self._oldest_ns: int | None = None
-        self._newest_ns: int | None = None
         # each stream's (oldest, newest) buffered stamp: the window is held per stream, as
         # a radar's stamps may run on another clock than the vehicle's
         self._ranges: dict[str, tuple[int, int]] = {}
@@ -444,13 +442,18 @@ class LiveCalibrator:
             else:
                 self.counters['receipts.clock_unset'] += 1
         self.counters[f'buffered.{stream}'] += 1
-        if self._oldest_ns is None or self._newest_ns is None:
-            self._oldest_ns = self._newest_ns = stamp_ns
-        else:
-            self._oldest_ns = min(self._oldest_ns, stamp_ns)
-            self._newest_ns = max(self._newest_ns, stamp_ns)
         lo, hi = self._ranges.get(stream, (stamp_ns, stamp_ns))
         self._ranges[stream] = (min(lo, stamp_ns), max(hi, stamp_ns))
+
+    @property
+    def _oldest_ns(self) -> int | None:
+        """The oldest buffered stamp of any stream."""
+        return min((lo for lo, _ in self._ranges.values()), default=None)
+
+    @property
+    def _newest_ns(self) -> int | None:
+        """The newest buffered stamp of any stream."""
+        return max((hi for _, hi in self._ranges.values()), default=None)
 
     def _enforce_bounds(self) -> None:
         """Drop the oldest data beyond buffer.max_duration or buffer.max_memory_mb, each
@@ -488,14 +491,11 @@ class LiveCalibrator:
             if n_before > n_after:
                 self.counters[f'dropped.{name}.{reason}'] += n_before - n_after
         self._ranges = self._builder.stamp_ranges_ns()
-        stamps = self._builder.stamp_range_ns()
-        self._oldest_ns, self._newest_ns = stamps if stamps else (None, None)
 
     def _clear_buffer(self) -> None:
         counters = self._builder.counters
         self._builder = RecordingBuilder(self._config)
         self._builder.counters = counters
-        self._oldest_ns = self._newest_ns = None
         self._ranges = {}
         self._radar_frame = None
 

@@ -173,12 +173,18 @@ def moving_unlike_vehicle(recording: Recording, target_index: I64, extrinsics: E
     poses = interpolate_poses(recording.vehicle, recording.stamps_of(target_index)
                               + np.int64(round(offset_s * 1e9)), config.sync.max_pose_gap)
     world = extrinsics.apply(recording.targets.positions_m[target_index])
-    rays = world - np.asarray(extrinsics.translation_m, np.float64)
-    rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
-    predicted = np.sum(poses.velocities_mps * rays, axis=1)
+    predicted = rigid_radial_velocity(world, extrinsics, poses.velocities_mps)
     measured = recording.targets.radial_velocity_mps[target_index]
     unlike: np.ndarray = poses.valid & (np.abs(measured - predicted) > MOTION_MISMATCH_MPS)
     return unlike
+
+
+def rigid_radial_velocity(world: F64, extrinsics: Extrinsics, velocities: F64) -> F64:
+    """(n,) radial velocity (range rate) the radar at ``extrinsics`` sees of targets at
+    ``world`` on a vehicle moving at ``velocities`` (its yaw rate neglected)."""
+    rays = world - np.asarray(extrinsics.translation_m, np.float64)
+    rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
+    return np.asarray(np.sum(velocities * rays, axis=1), np.float64)
 
 
 def recording_metrics(recording: Recording, target_index: I64, extrinsics: Extrinsics,

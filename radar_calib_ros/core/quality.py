@@ -402,8 +402,8 @@ def _misfit_not_the_vehicles(extrinsics: Extrinsics, recording: Recording, index
     stamps = recording.stamps_of(index)
     poses = interpolate_poses(recording.vehicle, hypotheses.pose_stamps_ns(
         stamps, config.sync.time_offset + extrinsics.time_offset_s), config.sync.max_pose_gap)
-    predicted = _rigid_radial_velocity(extrinsics.apply(targets.positions_m[index]),
-                                       extrinsics, poses.velocities_mps)
+    predicted = metrics.rigid_radial_velocity(extrinsics.apply(targets.positions_m[index]),
+                                              extrinsics, poses.velocities_mps)
     judged = poses.valid & (np.abs(predicted) > _CHECK_MIN_RADIAL_SPEED_MPS)
     if judged.mean() < _RIGID_JUDGED_SHARE:
         return None
@@ -691,16 +691,8 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
                             config.vehicle) <= config.refine.gate_m
         picked.append((chunk[near], frames[near], world[near]))
     index, frames, world = (np.concatenate(part) for part in zip(*picked))
-    predicted_vr = _rigid_radial_velocity(world, extrinsics, poses.velocities_mps[frames])
+    predicted_vr = metrics.rigid_radial_velocity(world, extrinsics, poses.velocities_mps[frames])
     return checked, index, frames, targets.radial_velocity_mps[index], predicted_vr
-
-
-def _rigid_radial_velocity(world: F64, extrinsics: Extrinsics, velocities: F64) -> F64:
-    """(n,) radial velocity (range rate) the radar at ``extrinsics`` sees of targets at
-    ``world`` on a vehicle moving at ``velocities`` (its yaw rate neglected)."""
-    rays = world - extrinsics.translation_m
-    rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
-    return np.sum(velocities * rays, axis=1)
 
 
 def check_vehicle_detection(extrinsics: Extrinsics, recording: Recording,

@@ -1726,8 +1726,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             Rotation.from_matrix(tilt_anchor @ est.rotation.T).as_rotvec()[:2])))
         geometry = model.geometry(x_hat)
         world = geometry['world']
-        diagnostics['line_spread_m'] = _line_spread(world, data)
-        axis, centre = _line_axis(world, data)
+        axis, centre, diagnostics['line_spread_m'] = _line_axis(world, data)
         diagnostics['line_axis'] = axis
         diagnostics['target_offset_m'] = centre - est.translation_m
         diagnostics['lane_separation_m'] = _lane_separation(world, geometry['vel'], axis, data)
@@ -2142,22 +2141,16 @@ def _turn_between_passes(passes: uncertainty.PassCovariance, prior_hessian: F64,
     return MountTurn(at_ns, gap, yaw, k, n - k, tilt)
 
 
-def _line_spread(world: F64, data: _Selected) -> float:
-    """Spread [m] (1 sigma, information-weighted) of the fitted targets' horizontal
-    positions across the direction in which they spread most: small where every target
-    lies along one road through the view."""
-    weight = data.sqrt_weight ** 2
-    xy = world[:, :2] - np.average(world[:, :2], axis=0, weights=weight)
-    return math.sqrt(max(float(np.linalg.eigvalsh(np.cov(xy.T, aweights=weight))[0]), 0.0))
-
-
-def _line_axis(world: F64, data: _Selected) -> tuple[F64, F64]:
+def _line_axis(world: F64, data: _Selected) -> tuple[F64, F64, float]:
     """Horizontal unit direction (3,) in which the fitted targets spread most (the road's,
-    where they lie along one road), and their information-weighted centre (3,) [m]."""
+    where they lie along one road), their information-weighted centre (3,) [m], and their
+    spread across it [m] (1 sigma): small where every target lies along one road through
+    the view."""
     weight = data.sqrt_weight ** 2
     centre = np.average(world, axis=0, weights=weight)
-    _, axes = np.linalg.eigh(np.cov((world[:, :2] - centre[:2]).T, aweights=weight))
-    return np.array([axes[0, 1], axes[1, 1], 0.0]), centre
+    values, axes = np.linalg.eigh(np.cov((world[:, :2] - centre[:2]).T, aweights=weight))
+    return (np.array([axes[0, 1], axes[1, 1], 0.0]), centre,
+            math.sqrt(max(float(values[0]), 0.0)))
 
 
 #: Least share of the information each direction along the road must hold to count.

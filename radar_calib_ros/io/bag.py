@@ -153,7 +153,7 @@ def _check_bag_path(path: Path) -> Path:
         # A recording cut short (the recorder killed, the laptop's battery) leaves its
         # storage file without the metadata.yaml written at the end; one such file reads
         # on its own (a thirteenth probe's were refused although intact).
-        files = sorted(p for p in path.iterdir() if p.suffix in _STORAGE_SUFFIXES)
+        files = _storage_files(path)
         if len(files) == 1:
             _LOG.warning('%r has no metadata.yaml (a recording interrupted before it was '
                          'written?): reading its storage file %s alone', str(path),

@@ -1428,11 +1428,11 @@ def test_line_spread_is_the_spread_across_the_road() -> None:
                              along * np.sin(heading) + across * np.cos(heading),
                              rng.normal(0.5, 0.3, 4000)]) + [500.0, -200.0, 6.0]
     data = SimpleNamespace(sqrt_weight=np.ones(4000))
-    assert refine._line_spread(world, data) == pytest.approx(0.6, rel=0.05)  # type: ignore
+    assert refine._line_axis(world, data)[2] == pytest.approx(0.6, rel=0.05)  # type: ignore
     # two roads crossing: no longer one line
     crossing = np.concatenate([world, world[:, [1, 0, 2]]])
     data = SimpleNamespace(sqrt_weight=np.ones(8000))
-    assert refine._line_spread(crossing, data) > 10.0  # type: ignore
+    assert refine._line_axis(crossing, data)[2] > 10.0  # type: ignore
 
 
 def _fake_refinement(rotation_deg: float, altitude_m: float, moved_deg: float,
