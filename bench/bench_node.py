@@ -181,7 +181,7 @@ def main() -> int:
     report: dict[str, Any] = {
         'recording_s': first['span_s'],
         'radar_frames': first['radar_frames'],
-        'targets_per_frame': first['targets_received'] / max(first['radar_frames'], 1),
+        'targets_per_frame': first['targets'] / max(first['radar_frames'], 1),
         'radar_frame': stats_us(costs['on_radar']),
         'navsatfix': stats_us(costs['on_navsat']),
         'odometry': stats_us(costs['on_odometry']),

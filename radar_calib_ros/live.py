@@ -198,6 +198,9 @@ class LiveCalibrator:
         self.counters: Counter[str] = Counter()
         self._throttle: dict[str, list[float]] = {}
         self._last_rejection_s = -math.inf
+        # when buffered or arriving data were last lost for another reason than the window
+        # (buffer.max_duration) the user chose: no fix, the memory bound, a restart
+        self._last_loss_s = -math.inf
         self._calibrating_since: float | None = None
         self._cancel = threading.Event()
         # outputs
@@ -264,6 +267,7 @@ class LiveCalibrator:
             return self._internal_error('navsat', err)
         if fix.status < 0:
             self.counters['dropped.navsat.no_fix'] += 1
+            self._last_loss_s = self._monotonic()
             self._warn('navsat.no_fix', 'NavSatFix without a fix (status < 0): dropped until '
                        'the receiver has a fix again', severity='info')
             return False
@@ -405,7 +409,7 @@ class LiveCalibrator:
         frames, fixes, odoms = self._builder.sample_counts()
         self._clear_buffer()
         self.counters['restarts'] += 1
-        now = self._monotonic()
+        now = self._last_loss_s = self._monotonic()
         released: list[tuple[str, int, Sample]] = []
         for other, state in self._streams.items():
             if other == stream:
@@ -479,6 +483,7 @@ class LiveCalibrator:
             span = max(hi - lo for lo, hi in self._ranges.values())
             for stream, (lo, hi) in list(self._ranges.items()):
                 self._drop_before(hi - int((hi - lo) * keep), 'max_memory', stream)
+            self._last_loss_s = self._monotonic()
             self._warn('buffer.max_memory', f'buffer.max_memory_mb ({cfg.max_memory_mb:g} MiB)'
                        f' reached at {span * 1e-9:.0f} s of data: the oldest data are dropped '
                        'from now on')
@@ -550,7 +555,11 @@ class LiveCalibrator:
             self._log('error', f'calibration failed with an {reason}\n{traceback.format_exc()}')
             return TriggerOutcome(False, f'calibration failed: {reason}')
         elapsed = time.perf_counter() - start
-        transform = _transform_from(calibration, self._now_ns())
+        # stamped with the calibration's own time, as the file says it: the node serves the
+        # same TransformStamped after a restart (the node clock, under use_sim_time a bag's,
+        # gave another stamp before the restart than after: a twenty-sixth probe)
+        transform = _transform_from(calibration, _stamp_ns(calibration['stamp'])
+                                    or self._now_ns())
         self._transform, self._calibration = transform, calibration
         self._failure = None
         summary = self._summary(calibration, result.quality, config)
@@ -700,14 +709,15 @@ class LiveCalibrator:
         return self._calibrating_since is not None
 
     def buffer_stats(self) -> dict[str, float]:
-        """Buffered frames, targets, fixes, odometry samples, span [s] and memory [MiB]."""
+        """Buffered frames, targets, fixes, odometry samples, span [s] and memory [MiB]:
+        what the buffer holds now (the counters say what arrived since the start)."""
         with self._buffer_lock:
             frames, fixes, odoms = self._builder.sample_counts()
-            targets = self._builder.counters['targets']
+            targets = self._builder.target_count()
             span = max(((hi - lo) * 1e-9 for lo, hi in self._ranges.values()), default=0.0)
             nbytes = self._builder.nbytes()
-        return {'radar_frames': frames, 'fixes': fixes, 'odometry': odoms,
-                'targets_received': targets, 'span_s': span, 'memory_mib': nbytes / 2**20}
+        return {'radar_frames': frames, 'targets': targets, 'fixes': fixes, 'odometry': odoms,
+                'span_s': span, 'memory_mib': nbytes / 2**20}
 
     def diagnostics(self) -> tuple[DiagnosticStatusOutput, ...]:
         """The calibration's quality figures and the buffer's counters."""
@@ -755,10 +765,20 @@ class LiveCalibrator:
         level, message = 'OK', (f'{stats["radar_frames"]} radar frames, {stats["fixes"]} fixes'
                                 f', {stats["odometry"]} odometry samples over '
                                 f'{stats["span_s"]:.0f} s ({stats["memory_mib"]:.1f} MiB)')
-        if self._monotonic() - self._last_rejection_s < WARN_THROTTLE_S:
+        now = self._monotonic()
+        if now - self._last_rejection_s < WARN_THROTTLE_S:
             level = 'WARN'
             message += ('; bad input in the last minute (' + ', '.join(
                 f'{k[len("rejected."):]}: {v}' for k, v in sorted(rejected.items())) + ')')
+        if now - self._last_loss_s < WARN_THROTTLE_S:
+            # the window's own drops (max_duration) are the buffer working as configured
+            lost = {k: v for k, v in counters.items()
+                    if k.startswith('dropped.') and not k.endswith('.max_duration')}
+            if counters.get('restarts'):
+                lost['restarts (buffer emptied)'] = counters['restarts']
+            level = 'WARN'
+            message += ('; data lost in the last minute (' + ', '.join(
+                f'{k.removeprefix("dropped.")}: {v}' for k, v in sorted(lost.items())) + ')')
         return DiagnosticStatusOutput(f'{self._name}: buffer', level, message,
                                       self._config.radar.frame_id, tuple(values))
 

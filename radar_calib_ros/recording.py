@@ -388,6 +388,10 @@ class RecordingBuilder:
         """Buffered (radar frames, fixes, odometry samples)."""
         return len(self._frame_stamps), len(self._fixes), len(self._odoms)
 
+    def target_count(self) -> int:
+        """Buffered radar targets (those of the frames still held)."""
+        return sum(v.shape[0] for v in self._frame_velocities)
+
     def snapshot(self, config: CalibConfig | None = None) -> RecordingBuilder:
         """A copy that later appends and drops do not change, made in O(samples) list copies.
 

@@ -8,6 +8,7 @@ directory, fsync, rename): a crash mid-write never leaves a broken result file.
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import json
 import math
 import os
@@ -18,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyproj
 import yaml
 from scipy.spatial.transform import Rotation
 
@@ -144,6 +146,7 @@ def write_atomic(path: str | Path, text: str) -> None:
     permissions a plainly created file gets (mkstemp's 0600 would keep a node running as
     another user from reading the result)."""
     path = Path(path)
+    _check_writable_place(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
     try:
@@ -162,6 +165,20 @@ def write_atomic(path: str | Path, text: str) -> None:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _check_writable_place(path: Path) -> None:
+    """Name what is in the way: mkdir and rename say only 'File exists' or 'Is a directory'
+    (a twenty-sixth probe's output.path under a file)."""
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, f'{str(path)!r} is a directory: give a file '
+                                'name', str(path))
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise NotADirectoryError(errno.ENOTDIR, f'{str(parent)!r} is a file, not a '
+                                         'directory', str(path))
+            return
 
 
 def _one_radar(calibrations: Mapping[str, Any], radar_frame: str | None,
@@ -240,9 +257,55 @@ def load_result(path: str | Path, radar_frame: str | None = None) -> dict[str, A
                               'quaternion of 4 numbers')
     if not isinstance(doc['epsg'], int):
         raise ResultFileError(f'result file {str(path)!r}: epsg must be an integer')
+    _check_redundant_keys(doc, t, q, path)
     if isinstance(doc.get('quality'), dict):
         doc['quality'].setdefault('advice', [])  # left out of result.yaml when empty
     return doc
+
+
+#: How far the redundant keys may sit from translation / quaternion_xyzw: they are written
+#: from the same numbers at full precision, so only a hand edit moves them this far.
+_RPY_TOLERANCE_DEG = 0.01
+_GEODETIC_TOLERANCE_M = 0.01
+
+
+def _check_redundant_keys(doc: Mapping[str, Any], translation: np.ndarray,
+                          quaternion: np.ndarray, path: Path) -> None:
+    """rpy_deg, latitude/longitude/altitude say again what quaternion_xyzw and translation
+    say; the tool reads only the latter. A file where they disagree has been edited by hand
+    (a yaw corrected in rpy_deg, a position in latitude/longitude) and served as it was, it
+    would publish something else than its reader believes (a twenty-sixth probe's case):
+    refused, naming both."""
+    name = str(path)
+    rpy = doc.get('rpy_deg')
+    if rpy is not None:
+        if not _is_numbers(rpy, 3):
+            raise ResultFileError(f'result file {name!r}: rpy_deg must be 3 numbers')
+        from_rpy = Rotation.from_euler('xyz', rpy, degrees=True)
+        apart = math.degrees((from_rpy.inv() * Rotation.from_quat(quaternion)).magnitude())
+        if apart > _RPY_TOLERANCE_DEG:
+            stated = ', '.join(f'{v:.3f}' for v in Rotation.from_quat(quaternion).as_euler(
+                'xyz', degrees=True))
+            raise ResultFileError(
+                f'result file {name!r}: rpy_deg {list(rpy)} and quaternion_xyzw (roll, pitch, '
+                f'yaw {stated} deg) disagree by {apart:.3f} deg; the tool uses '
+                'quaternion_xyzw: edit both, or remove rpy_deg')
+    geodetic = [doc.get(k) for k in ('latitude', 'longitude', 'altitude')]
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in geodetic):
+        try:
+            to_utm = pyproj.Transformer.from_crs(4326, int(doc['epsg']), always_xy=True)
+        except pyproj.exceptions.CRSError as err:
+            raise ResultFileError(f'result file {name!r}: epsg {doc["epsg"]} is not a known '
+                                  'coordinate system') from err
+        lat, lon, alt = (float(v) for v in geodetic)
+        easting, northing = to_utm.transform(lon, lat)
+        apart = math.dist((easting, northing, alt), translation)
+        if not apart <= _GEODETIC_TOLERANCE_M:
+            raise ResultFileError(
+                f'result file {name!r}: latitude/longitude/altitude {lat:.7f}, {lon:.7f}, '
+                f'{alt:.3f} lie {apart:.3f} m from translation {list(translation)} (EPSG '
+                f'{doc["epsg"]}); the tool uses translation: edit both, or remove latitude, '
+                'longitude and altitude')
 
 
 def _is_numbers(value: Any, n: int) -> bool:

@@ -24,11 +24,15 @@ from radar_calib_ros.sim import SimulationSummary
 
 def _calibration(truth: dict[str, Any], *, shift_m: tuple[float, float, float] = (0, 0, 0),
                  yaw_deg: float = 0.0) -> dict[str, Any]:
-    """The truth in the result layout, optionally moved and turned about its own position."""
+    """The truth in the result layout, optionally moved and turned about its own position
+    (then without the keys that repeat translation and quaternion: load_result refuses a
+    file where they disagree)."""
+    moved = any(shift_m) or yaw_deg
     cal = {k: v for k, v in truth.items()
            if k in ('world_frame', 'radar_frame', 'epsg', 'translation', 'quaternion_xyzw',
                     'rpy_deg', 'latitude', 'longitude', 'altitude', 'boresight_azimuth_deg',
-                    'stamp')}
+                    'stamp')
+           and not (moved and k in ('rpy_deg', 'latitude', 'longitude', 'altitude'))}
     cal['translation'] = [float(a + b) for a, b in zip(truth['translation'], shift_m)]
     rot = Rotation.from_euler('z', yaw_deg, degrees=True) * Rotation.from_quat(
         truth['quaternion_xyzw'])

@@ -16,7 +16,8 @@ from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.io import messages as msgs
 from radar_calib_ros.io.bag import read_recording
 from radar_calib_ros.live import (
-    BACKWARD_TOLERANCE_NS, CONFIRM_MESSAGES, WARN_THROTTLE_S, LiveCalibrator, replace_config)
+    BACKWARD_TOLERANCE_NS, CONFIRM_MESSAGES, WARN_THROTTLE_S, LiveCalibrator, _stamp_ns,
+    replace_config)
 from radar_calib_ros.recording import RecordingBuilder
 from radar_calib_ros.result import load_result
 from radar_calib_ros.types import Extrinsics, FixSample, OdomSample, QualityReport, RadarFrame
@@ -170,6 +171,7 @@ def test_messages_are_buffered_and_counted(tmp_path: Path, store: Any) -> None:
     feed(live, store, 4.0)
     stats = live.buffer_stats()
     assert (stats['radar_frames'], stats['fixes'], stats['odometry']) == (60, 200, 200)
+    assert stats['targets'] == 60 * 20
     assert live.counters['received.radar'] == 60
     assert live.counters['received.navsat'] == live.counters['buffered.navsat'] == 200
     assert 3.9 < stats['span_s'] < 4.0
@@ -187,6 +189,10 @@ def test_buffer_bounded_by_max_duration(tmp_path: Path, store: Any) -> None:
     assert log.count('buffer.max_duration') == 1
     oldest = live._builder.stamp_range_ns()[0]
     assert oldest >= T0_NS + int(13.9e9)  # the oldest data went first
+    # the targets are those held, not all that arrived (a twenty-sixth probe's finding)
+    assert stats['targets'] == 2 * stats['radar_frames'] < live.counters['buffered.radar'] * 2
+    # the window the user chose is the buffer working, not a loss
+    assert live.diagnostics()[1].level == 'OK'
     consistent(live)
 
 
@@ -276,6 +282,9 @@ def test_buffer_bounded_by_memory(tmp_path: Path, store: Any) -> None:
     assert live.buffer_stats()['radar_frames'] < 400
     assert live.counters['dropped.radar.max_memory'] > 0
     assert log.count('buffer.max_memory_mb') == 1
+    status = live.diagnostics()[1]
+    assert status.level == 'WARN' and 'data lost in the last minute' in status.message
+    assert 'radar.max_memory' in status.message
     consistent(live)
 
 
@@ -398,6 +407,19 @@ def test_navsatfix_without_fix_or_nan_and_bad_odometry(tmp_path: Path, store: An
     consistent(live)
 
 
+def test_fixes_lost_to_no_fix_warn_the_buffer_status_for_a_minute(
+        tmp_path: Path, store: Any) -> None:
+    clock = FakeClock()
+    live, _ = make_live(tmp_path, clock=clock)
+    feed(live, store, 1.0)
+    assert live.diagnostics()[1].level == 'OK'
+    live.on_navsat(fix_msg(store, T0_NS + 2 * 10**9, status=-1))
+    status = live.diagnostics()[1]
+    assert status.level == 'WARN' and 'navsat.no_fix: 1' in status.message
+    clock.t += WARN_THROTTLE_S + 1
+    assert live.diagnostics()[1].level == 'OK'
+
+
 def test_repeated_warnings_are_throttled(tmp_path: Path, store: Any) -> None:
     clock = FakeClock()
     live, log = make_live(tmp_path, clock=clock)
@@ -420,6 +442,8 @@ def test_bag_replayed_in_a_loop_starts_a_new_recording(tmp_path: Path, store: An
     assert stats['span_s'] < 3.0
     assert live.counters['restarts'] == 1
     assert log.count('treating it as a new recording') == 1
+    status = live.diagnostics()[1]
+    assert status.level == 'WARN' and 'restarts (buffer emptied): 1' in status.message
     consistent(live)
 
 
@@ -650,8 +674,8 @@ def test_calibrate_success_publishes_and_writes_the_file(tmp_path: Path, store: 
     transform = outcome.transform
     assert transform is not None and transform == live.transform
     assert (transform.parent_frame, transform.child_frame) == ('utm', 'radar')
-    assert transform.stamp_ns == T0_NS
     saved = load_result(tmp_path / 'result.yaml')
+    assert transform.stamp_ns == _stamp_ns(saved['stamp'])  # the same after a restart
     assert saved['translation'] == pytest.approx(list(transform.translation_m))
     assert saved['quaternion_xyzw'] == pytest.approx(list(transform.quaternion_xyzw))
     status = live.diagnostics()[0]
@@ -764,7 +788,7 @@ def test_existing_result_file_is_loaded_and_served(tmp_path: Path, store: Any) -
     published = first.calibrate().transform
     second, log = make_live(tmp_path)
     loaded = second.load_result_file()
-    assert loaded is not None and loaded == second.transform
+    assert loaded is not None and loaded == second.transform == published
     assert loaded.translation_m == pytest.approx(published.translation_m)
     assert loaded.quaternion_xyzw == pytest.approx(published.quaternion_xyzw)
     assert loaded.child_frame == 'radar'

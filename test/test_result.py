@@ -91,6 +91,54 @@ def test_corrupt_result_files(tmp_path: Path, text: str, match: str) -> None:
         load_result(path)
 
 
+def _result_file(tmp_path: Path, **edits: object) -> Path:
+    frame = LocalFrame.at(48.4, 9.99)
+    cal = calibration_dict(Extrinsics(_rz(10.0), np.array([1.0, 2.0, 480.0])), frame)
+    cal.update(edits)
+    write_result_yaml(tmp_path / 'r.yaml', cal)
+    return tmp_path / 'r.yaml'
+
+
+def test_a_hand_edited_rpy_or_position_contradicting_the_file_is_refused(
+        tmp_path: Path) -> None:
+    cal = load_result(_result_file(tmp_path))
+    roll, pitch, yaw = cal['rpy_deg']
+    with pytest.raises(ResultFileError, match=r'rpy_deg .* disagree by 2\.000 deg; the tool '
+                       'uses quaternion_xyzw'):
+        load_result(_result_file(tmp_path, rpy_deg=[roll, pitch, yaw + 2.0]))
+    with pytest.raises(ResultFileError, match=r'lie 1\.1.. m from translation'):
+        load_result(_result_file(tmp_path, latitude=cal['latitude'] + 1e-5))
+    with pytest.raises(ResultFileError, match='rpy_deg must be 3 numbers'):
+        load_result(_result_file(tmp_path, rpy_deg=[0.0, 'x', 1.0]))
+    # a file of the three keys the tool uses alone is fine
+    minimal = {k: cal[k] for k in ('epsg', 'translation', 'quaternion_xyzw')}
+    (tmp_path / 'min.json').write_text(json.dumps(minimal))
+    assert load_result(tmp_path / 'min.json')['translation'] == cal['translation']
+
+
+@pytest.mark.parametrize('lat, lon, epsg', [(48.4, 11.99, 32632), (48.4, 11.99, 32633),
+                                            (-33.9, 18.4, 0), (60.2, 24.9, 3067)])
+def test_written_results_load_in_any_zone(tmp_path: Path, lat: float, lon: float,
+                                          epsg: int) -> None:
+    """The redundant keys agree with the ones used wherever the frame's grid lies (a zone
+    forced by world.epsg, a national grid)."""
+    frame = LocalFrame.at(lat, lon, epsg)
+    ext = Extrinsics(Rotation.from_euler('xyz', [1.5, 8.0, -130.0], degrees=True).as_matrix(),
+                     np.array([350.0, -800.0, 490.0]))
+    write_result_yaml(tmp_path / 'r.yaml', calibration_dict(ext, frame))
+    assert load_result(tmp_path / 'r.yaml')['epsg'] == frame.epsg
+
+
+def test_writing_under_a_file_or_onto_a_directory_names_it(tmp_path: Path) -> None:
+    (tmp_path / 'plain').write_text('x')
+    with pytest.raises(NotADirectoryError, match="'.*plain' is a file, not a directory"):
+        write_atomic(tmp_path / 'plain' / 'sub' / 'r.yaml', 'x: 1\n')
+    (tmp_path / 'dir').mkdir()
+    with pytest.raises(IsADirectoryError, match="'.*dir' is a directory: give a file name"):
+        write_atomic(tmp_path / 'dir', 'x: 1\n')
+    assert (tmp_path / 'plain').read_text() == 'x' and not list((tmp_path / 'dir').iterdir())
+
+
 def test_write_atomic_keeps_old_file_on_failure(tmp_path: Path) -> None:
     path = tmp_path / 'r.yaml'
     write_atomic(path, 'old\n')
