@@ -152,17 +152,17 @@ def _check_bag_path(path: Path) -> Path:
     if path.is_dir() and not (path / 'metadata.yaml').is_file():
         # A recording cut short (the recorder killed, the laptop's battery) leaves its
         # storage file without the metadata.yaml written at the end; one such file reads
-        # on its own (a thirteenth probe's were refused although intact).
+        # on its own (a thirteenth probe's were refused although intact), several (a split
+        # recording) one by one (``_SplitReader``).
         files = _storage_files(path)
         if len(files) == 1:
             _LOG.warning('%r has no metadata.yaml (a recording interrupted before it was '
                          'written?): reading its storage file %s alone', str(path),
                          files[0].name)
             return files[0]
-        hint = (f' but {len(files)} storage files: run `ros2 bag reindex {path}` to write '
-                'it' if files else '')
-        raise BagReadError(f'{str(path)!r} is not a rosbag2 bag (no metadata.yaml in it'
-                           f'{hint})')
+        if not files:
+            raise BagReadError(f'{str(path)!r} is not a rosbag2 bag (no metadata.yaml and no '
+                               'storage file in it)')
     return path
 
 
@@ -334,10 +334,80 @@ def _cut_mcap(path: Path) -> _CutMcap | None:
 
 
 def _storage_files(path: Path) -> list[Path]:
-    """The storage files of a bag (a directory) or the one file given."""
+    """The storage files of a bag (a directory) or the one file given, in the order
+    rosbag2 wrote them (``name_2`` before ``name_10``)."""
     if path.is_file():
         return [path]
-    return sorted(p for p in path.iterdir() if p.suffix in _STORAGE_SUFFIXES)
+    return sorted((p for p in path.iterdir() if p.suffix in _STORAGE_SUFFIXES),
+                  key=_split_order)
+
+
+def _split_order(file: Path) -> tuple[str, int, str]:
+    stem, _, index = file.stem.rpartition('_')
+    return (stem, int(index), file.suffix) if index.isdigit() else (file.stem, -1, file.suffix)
+
+
+class _SplitReader:
+    """A split recording without its metadata.yaml (rosbag2 writes it when the recording
+    ends: a recorder that lost power leaves ``name_0.mcap``, ``name_1.mcap``, ... and the
+    last one cut short). Each storage file is read on its own (``_PlainReader``; one cut
+    short, ``_CutMcap``), in the order they were written; a file without a single whole
+    message is left out with a warning. `ros2 bag reindex` was the advice before, which
+    needs ROS and cannot read the cut file either: the data already written is the
+    user's."""
+
+    def __init__(self, path: Path) -> None:
+        self._typestore = msgs.get_typestore()
+        self._parts: list[Any] = []
+        files = _storage_files(path)
+        _LOG.warning('%r has no metadata.yaml (a split recording interrupted before it was '
+                     'written?): reading its %d storage files one by one', str(path),
+                     len(files))
+        try:
+            for file in files:
+                part = self._open_part(file)
+                if part is not None:
+                    self._parts.append(part)
+        except BaseException:
+            self.close()
+            raise
+        if not self._parts:
+            raise BagReadError(f'{str(path)!r} has no metadata.yaml and none of its '
+                               f'{len(files)} storage files holds a whole message')
+        self.connections: list[Any] = [c for part in self._parts for c in part.connections]
+        self._owner = {id(c): part for part in self._parts for c in part.connections}
+
+    @staticmethod
+    def _open_part(file: Path) -> Any:
+        try:
+            return _PlainReader(file)
+        except (OSError, *_STORAGE_ERRORS) as err:
+            if 'end magic' not in _reason(err).lower():
+                raise BagReadError(f'reading {str(file)!r}: {_reason(err)}') from err
+        cut = _cut_mcap(file)
+        if cut is None:
+            _LOG.warning('%s was cut short before its first whole message: left out',
+                         file.name)
+        else:
+            _LOG.warning('%s was cut short (the recording interrupted): read up to the cut, '
+                         'the %d messages of its whole chunks (%.0f %% of the file)',
+                         file.name, sum(c.msgcount for c in cut.connections),
+                         100 * cut.kept_fraction)
+        return cut
+
+    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, Any]]:
+        wanted = list(connections) or self.connections
+        for part in self._parts:
+            own = [c for c in wanted if self._owner.get(id(c)) is part]
+            if own:
+                yield from part.messages(own)
+
+    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
+        return self._typestore.deserialize_cdr(rawdata, msgtype)
+
+    def close(self) -> None:
+        for part in self._parts:
+            part.close()
 
 
 def _unread_logs(path: Path) -> list[Path]:
@@ -366,7 +436,9 @@ def _open_reader(path: Path) -> Iterator[_BagReader]:
     reader: Any = None
     try:
         logs = _unread_logs(path)
-        if logs:
+        if path.is_dir() and not (path / 'metadata.yaml').is_file():
+            reader = _SplitReader(path)
+        elif logs:
             _LOG.warning('%s holds messages not yet in its database (a recording not closed '
                          'cleanly): read through it, read-only', logs[0].name)
             reader = _PlainReader(path)

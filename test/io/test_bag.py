@@ -421,9 +421,53 @@ def test_a_bag_without_metadata_reads_its_one_storage_file(
     (bag / 'metadata.yaml').unlink()
     rec = read_recording(bag, CalibConfig())
     assert rec.counters['radar_frames'] == len(scene()['frames'])
-    shutil.copy(_storage_file(bag), bag / ('second' + _storage_file(bag).suffix))
-    with pytest.raises(BagReadError, match='but 2 storage files: run `ros2 bag reindex'):
+    _storage_file(bag).unlink()
+    with pytest.raises(BagReadError, match='no metadata.yaml and no storage file'):
         read_recording(bag, CalibConfig())
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_split_recording_without_metadata_reads_file_by_file(
+        tmp_path: Path, ts: Any, storage: str, caplog: pytest.LogCaptureFixture) -> None:
+    """A split recording (``name_0``, ``name_1``, ...) whose recorder lost power: no
+    metadata.yaml, and the last MCAP file cut short. Each file is read on its own, the cut
+    one up to the cut; before, the advice was `ros2 bag reindex`, which needs ROS."""
+    s = scene(n_frames=60, n_poses=200)
+    items = sorted(bag_messages(ts, s), key=lambda item: item[2])
+    write_bag(tmp_path / 'whole', iter(items), storage=storage, typestore=ts)
+    full = read_recording(tmp_path / 'whole', CalibConfig())
+    bag = tmp_path / 'split'
+    bag.mkdir()
+    # eleven parts: name_10 sorts after name_9 (as rosbag2 wrote them), not after name_1
+    for k, part in enumerate(np.array_split(np.arange(len(items)), 11)):
+        write_bag(tmp_path / f'part{k}', (items[i] for i in part), storage=storage,
+                  typestore=ts)
+        file = _storage_file(tmp_path / f'part{k}')
+        shutil.move(file, bag / f'split_{k}{file.suffix}')
+    with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+        rec = read_recording(bag, CalibConfig())
+    assert 'reading its 11 storage files one by one' in caplog.text
+    assert rec.counters['radar_frames'] == full.counters['radar_frames'] == 60
+    np.testing.assert_array_equal(rec.frame_stamps_ns, full.frame_stamps_ns)
+    assert radar_topics(bag) == ['/radar/points']
+    if storage != 'mcap':
+        return
+    last = bag / 'split_10.mcap'
+    whole = last.read_bytes()
+    last.write_bytes(whole[:len(whole) // 50])    # cut before its first whole message
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+        rec = read_recording(bag, CalibConfig())
+    assert 'split_10.mcap was cut short before its first whole message: left out' in (
+        caplog.text)
+    assert 0 < rec.counters['radar_frames'] < full.counters['radar_frames']
+    np.testing.assert_array_equal(rec.frame_stamps_ns,
+                                  full.frame_stamps_ns[:rec.frame_stamps_ns.size])
+    for file in bag.iterdir():
+        file.write_bytes(b'')
+    with pytest.raises(BagReadError, match='reading') as info:
+        read_recording(bag, CalibConfig())
+    assert 'split_0.mcap' in str(info.value)
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
