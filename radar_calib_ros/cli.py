@@ -12,6 +12,7 @@ import dataclasses
 import logging
 import math
 import os
+import stat
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -25,6 +26,8 @@ if TYPE_CHECKING:
     from radar_calib_ros.recording import Recording
 
 _LOG = logging.getLogger('radar_calib_ros')
+#: Where ``calibrate --all-radars`` writes its results unless --output-dir says.
+DEFAULT_OUTPUT_DIR = 'radar_calibrations'
 
 
 def _load_config(params: str | None) -> CalibConfig:
@@ -144,8 +147,15 @@ class _LoggedWarnings(logging.Handler):
 def _echo_advice(out: TextIO) -> bool:
     """Whether the summary's advice is repeated as warnings on stderr: only for someone
     watching a terminal while the summary goes elsewhere (each sentence was printed twice
-    to a terminal, four paragraphs of advice among them)."""
-    return bool(sys.stderr.isatty()) and not (hasattr(out, 'isatty') and out.isatty())
+    to a terminal, four paragraphs of advice among them). Not when the summary goes into
+    a pipe: ``| cat``, ``| tee log`` or ``| less`` show it on the same terminal (a probe
+    read every sentence twice there)."""
+    if not sys.stderr.isatty() or (hasattr(out, 'isatty') and out.isatty()):
+        return False
+    try:
+        return not stat.S_ISFIFO(os.fstat(out.fileno()).st_mode)
+    except (AttributeError, OSError, ValueError):   # no file behind it (a StringIO)
+        return True
 
 
 def _num(value: Any) -> float:
@@ -157,10 +167,22 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     config = _load_config(args.params)
     if args.all_radars:
         return cmd_calibrate_all_radars(args, out)
+    if args.output_dir is not None:
+        raise ResultFileError('--output-dir goes with --all-radars (one result per radar); '
+                              'for one radar give the result file with --output')
+    if args.output is None and 'output.path' in config.explicit:
+        print(f'note: output.path ({config.output.path}) is where the node writes its result; '
+              'the offline tool writes result.yaml unless --output names another file',
+              file=sys.stderr)
+    args.output = args.output or 'result.yaml'
+    _refuse_overwriting_inputs({'--output': args.output, '--json': args.json},
+                               {'parameters file (--params)': args.params}, args.bag)
+    _check_writable(args.output, args.json)
+    if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
+        raise ResultFileError(f'--report {args.report!r} is a file, not a directory: give '
+                              'the directory for the figures and report.html')
     config = _radar_of_frame(args.bag, config)
     _refuse_ambiguous_radar(args.bag, config)
-    args.output = args.output or 'result.yaml'
-    _check_writable(args.output, args.json)
     _warn_frame_id(args.bag, config)
     progress = _Progress(args.progress if args.progress is not None else sys.stderr.isatty())
     logged = _LoggedWarnings()
@@ -171,6 +193,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     finally:
         package_log.removeHandler(logged)
     calibration = result.calibration(config)
+    replaced = [p for p in (args.output, args.json) if p and Path(p).is_file()]
     write_result_yaml(args.output, calibration)
     if args.json:
         write_result_json(args.json, calibration)
@@ -181,7 +204,8 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
         for advice in calibration['quality'].get('advice') or []:
             if advice not in logged.messages:
                 print(f'warning: {advice}', file=sys.stderr)
-    print(f'result written to {args.output}' + (f' and {args.json}' if args.json else ''),
+    print(f'result written to {args.output}' + (f' and {args.json}' if args.json else '')
+          + (f' (replacing the earlier {" and ".join(replaced)})' if replaced else ''),
           file=out)
     if args.report:
         from radar_calib_ros.report import report_calibration
@@ -213,6 +237,10 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     from radar_calib_ros.result import write_atomic
     start = time.perf_counter()
     config = _load_config(args.params)
+    _refuse_overwriting_inputs({'--json': args.json},
+                               {'calibration file (--calibration)': args.calibration,
+                                'parameters file (--params)': args.params}, args.bag)
+    _check_writable(args.json)
     calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
     read_s = time.perf_counter() - start
     evaluation = evaluate_recording(recording, calibration, config,
@@ -229,6 +257,9 @@ def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
     from radar_calib_ros.report import report_recording
     start = time.perf_counter()
     config = _load_config(args.params)
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise ResultFileError(f'--out {args.out!r} is a file, not a directory: give the '
+                              'directory for the figures and report.html')
     calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
     files = report_recording(args.out, recording, calibration, config,
                              truth=_ground_truth(args.bag), source=str(args.bag))
@@ -308,6 +339,48 @@ def _check_writable(*paths: str | None) -> None:
                                   'not a writable folder')
 
 
+#: Files of a rosbag2 recording an output must never replace.
+_BAG_FILE_SUFFIXES = ('.mcap', '.db3', '.db3-wal', '.db3-shm')
+
+
+def _refuse_overwriting_inputs(outputs: dict[str, str | None],
+                               inputs: dict[str, str | None], bag: str | None) -> None:
+    """ResultFileError (exit 2) before the work when an output would replace an input (the
+    parameters or calibration file, a file of the bag) or another output: a probe's
+    ``--output site.yaml`` with ``--params site.yaml`` replaced the site's parameters by
+    the result, ``--output bag/metadata.yaml`` made the recording unreadable, ``--output
+    same --json same`` left a result.yaml holding JSON."""
+    def same(path: str) -> Path:
+        return Path(os.path.realpath(path))
+
+    bag_files: set[Path] = set()
+    if bag:
+        root = same(bag)
+        if root.is_file():
+            bag_files = {root} | ({root.parent / 'metadata.yaml'}
+                                  if root.name == 'metadata.yaml' else set())
+        elif root.is_dir():
+            bag_files = {p for p in root.iterdir() if p.name == 'metadata.yaml'
+                         or p.name.endswith(_BAG_FILE_SUFFIXES)}
+    taken: dict[Path, str] = {}
+    for flag, path in outputs.items():
+        if not path or (Path(path).exists() and not Path(path).is_file()
+                        and not Path(path).is_dir()):
+            continue   # unset, or a device or pipe (/dev/stdout): nothing to replace
+        target = same(path)
+        if target in taken:
+            raise ResultFileError(f'{taken[target]} and {flag} name the same file {path!r}: '
+                                  'give each its own')
+        taken[target] = flag
+        for role, source in inputs.items():
+            if source and same(source) == target:
+                raise ResultFileError(f'{flag} {path!r} is the {role}: writing there would '
+                                      f'replace it; choose another {flag}')
+        if target in bag_files:
+            raise ResultFileError(f'{flag} {path!r} is a file of the recording {bag!r}: '
+                                  f'writing there would destroy it; choose another {flag}')
+
+
 def _warn_frame_id(bag: str, config: CalibConfig) -> None:
     """Warn when the radar topic's header frame_id is not ``radar.frame_id``."""
     from radar_calib_ros.io.bag import configured_radar_frame_id
@@ -328,6 +401,11 @@ def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
         print('error: --report takes one radar; use `radar-calib report` per radar result',
               file=sys.stderr)
         return 2
+    if args.jobs is not None and args.jobs < 1:
+        raise ResultFileError(f'--jobs {args.jobs}: give at least 1 worker process')
+    args.output_dir = args.output_dir or DEFAULT_OUTPUT_DIR
+    _refuse_overwriting_inputs({'--output': args.output, '--json': args.json},
+                               {'parameters file (--params)': args.params}, args.bag)
     _check_writable(args.output, args.json)
     start = time.perf_counter()
 
@@ -371,11 +449,20 @@ def cmd_simulate(args: argparse.Namespace, out: TextIO) -> int:
     mount = '' if args.mount_seed is None else f', mount seed {args.mount_seed}'
     if args.mount_turn is not None:
         mount += (f', mount turned {args.mount_turn[1]:+g} deg at {args.mount_turn[0]:g} s')
+    # the drives the radar saw the vehicle on: a drive at the edge of the view may give it
+    # no target (a probe read '3 passes' and then calibrate's 'seen in 2 passes')
+    seen = sum(1 for p in summary.truth.get('passes', []) if p.get('n_targets', 1) > 0)
     print(f'simulated {args.scenario!r} ({args.duration:.0f} s, seed {args.seed}{mount}) into '
           f'{args.out_bag} in {time.perf_counter() - start:.1f} s: {summary.n_frames} radar '
-          f'frames, {summary.n_targets} targets, {summary.n_passes} passes of the calibration '
-          'vehicle', file=out)
+          f'frames, {summary.n_targets} targets; the calibration vehicle drove through the '
+          f'view {_times(summary.n_passes)}' + (
+              f', {seen} of them with targets on it' if seen != summary.n_passes else ''),
+          file=out)
     return 0
+
+
+def _times(n: int) -> str:
+    return {1: 'once', 2: 'twice'}.get(n, f'{n} times')
 
 
 def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
@@ -393,6 +480,12 @@ def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
                   file=sys.stderr)
             return 2
         shutil.rmtree(bag)  # our own earlier demo recording: replace it
+    # what simulate would refuse, refused before anything is said or done
+    from radar_calib_ros.errors import ConfigError
+    from radar_calib_ros.sim.scenario import get_scenario
+    get_scenario(args.scenario)
+    if not 10.0 <= args.duration <= 3600.0:
+        raise ConfigError(f'--duration {args.duration:g} s is outside [10, 3600] s')
     print(f'1/4 simulating a {args.duration:.0f} s drive past a roadside radar '
           f'(scenario {args.scenario!r}, seed {args.seed}) ...', file=out)
     start = time.perf_counter()
@@ -473,8 +566,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help='calibrate every radar topic of the recording, in parallel processes: '
                    'one result per radar frame in --output-dir plus all_radars.yaml with '
                    'every transform (--json then holds them all, keyed by frame)')
-    p.add_argument('--output-dir', default='radar_calibrations', metavar='DIR',
-                   help='with --all-radars: where the results go (default: %(default)s)')
+    p.add_argument('--output-dir', default=None, metavar='DIR',
+                   help=f'with --all-radars: where the results go (default: '
+                   f'{DEFAULT_OUTPUT_DIR})')
     p.add_argument('--jobs', type=int, default=None, metavar='N',
                    help='with --all-radars: worker processes (default: one per radar, at most '
                    'the number of CPUs)')
@@ -513,10 +607,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('simulate', help='write a synthetic recording with its ground truth')
     p.add_argument('out_bag', help='bag directory to create')
-    p.add_argument('--seed', type=int, default=0)
-    p.add_argument('--duration', type=float, default=600.0, help='seconds (default: 600)')
-    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
-    p.add_argument('--scenario', default='baseline')
+    p.add_argument('--seed', type=int, default=0,
+                   help='varies the drive, traffic and noise (default: %(default)s)')
+    p.add_argument('--duration', type=float, default=600.0,
+                   help='seconds, 10-3600 (default: 600)')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                   help='rosbag2 storage (default: %(default)s)')
+    p.add_argument('--scenario', default='baseline', metavar='NAME',
+                   help='site and drive (default: %(default)s; an unknown name lists the '
+                   'known ones)')
     p.add_argument('--scatter-model', default=None,
                    help='where on road users the radar sees them (skin, interior, mixed)')
     p.add_argument('--mount-seed', type=int, default=None,
@@ -535,9 +634,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('demo',
                        help='simulate, calibrate, compare with the ground truth and report')
-    p.add_argument('--seed', type=int, default=1)
-    p.add_argument('--duration', type=float, default=150.0)
-    p.add_argument('--scenario', default='baseline')
+    p.add_argument('--seed', type=int, default=1,
+                   help='varies the drive, traffic and noise (default: %(default)s)')
+    p.add_argument('--duration', type=float, default=150.0,
+                   help='seconds of simulated drive, 10-3600 (default: %(default)s)')
+    p.add_argument('--scenario', default='baseline', metavar='NAME',
+                   help='site and drive, as for simulate (default: %(default)s)')
     p.add_argument('--out', default='radar_calib_demo',
                    help='directory for the recording, result and report (default: %(default)s)')
     p.set_defaults(func=cmd_demo)
@@ -558,10 +660,43 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     for handler, once in filters:
         handler.addFilter(once)
     try:
-        return _run(args, out or sys.stdout)
+        return _run(args, out or _PipeSafe(sys.stdout))
     finally:
         for handler, once in filters:
             handler.removeFilter(once)
+
+
+class _PipeSafe:
+    """stdout that a reader gone away (``radar-calib calibrate BAG | head -3``) does not
+    stop: the command goes on and writes its files, and its exit code says what it did.
+    A broken pipe failed the run after the result was written (exit 2, 'cannot write
+    None: Broken pipe', a probe's finding)."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self._stream = stream
+        self._gone = False
+
+    def write(self, text: str) -> int:
+        if not self._gone:
+            try:
+                self._stream.write(text)
+                self._stream.flush()
+            except BrokenPipeError:
+                self._gone = True
+                # the interpreter's own flush of stdout at exit must not fail either
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, self._stream.fileno())
+                os.close(devnull)
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return self._stream.isatty()
+
+    def fileno(self) -> int:
+        return self._stream.fileno()
 
 
 class _Once(logging.Filter):

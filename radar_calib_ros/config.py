@@ -10,7 +10,9 @@ the CLI feeds it a parameters file, the node its declared ROS parameters, and
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
+import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +21,8 @@ from typing import Any
 import yaml
 
 from radar_calib_ros.errors import ConfigError
+
+_LOG = logging.getLogger(__name__)
 
 
 def _p(default: Any, doc: str, *, lo: float | None = None, hi: float | None = None,
@@ -456,12 +460,31 @@ def flatten(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
     return flat
 
 
+#: The node's name unless remapped (``ros2 run radar_calib_ros calibrator``); the offline
+#: tool reads the section of this name where a file holds several nodes' parameters.
+DEFAULT_NODE_NAME = 'calibrator'
+
+#: A float as YAML 1.2 and ROS 2's parameter parser read it: PyYAML (YAML 1.1) reads
+#: ``1e3`` and ``1.5e-3`` as strings, which then failed as 'must be float, got str'.
+_FLOAT_12 = re.compile(r'^[-+]?(\.[0-9]+|[0-9]+\.[0-9]*|[0-9]+)([eE][-+]?[0-9]+)$'
+                       r'|^[-+]?(\.[0-9]+|[0-9]+\.[0-9]*)$')
+
+
+class _ParamsLoader(yaml.SafeLoader):
+    """PyYAML's safe loader reading floats as ROS 2 does."""
+
+
+_ParamsLoader.add_implicit_resolver('tag:yaml.org,2002:float', _FLOAT_12,
+                                    list('-+0123456789.'))
+
+
 def read_params_file(path: str | Path, node_name: str | None = None) -> dict[str, Any]:
     """The ``ros__parameters`` of a ROS 2 parameters file, merged over node keys.
 
-    Entries under ``/**`` apply to every node; an entry under the node's own name (or any
-    other single name when ``node_name`` is None, as the offline tool has no node name)
-    overrides them, as ROS 2 does.
+    Entries under ``/**`` apply to every node; an entry under the node's own name
+    overrides them, as ROS 2 does, and other nodes' entries are left alone. The offline
+    tool (``node_name`` None) has no node name: it takes the file's one node entry, or of
+    several the one named ``calibrator`` (any namespace), and refuses to guess among more.
     """
     path = Path(path)
     try:
@@ -469,29 +492,77 @@ def read_params_file(path: str | Path, node_name: str | None = None) -> dict[str
     except OSError as err:
         raise ConfigError(f'cannot read parameters file {str(path)!r}: {err.strerror}') from err
     try:
-        doc = yaml.safe_load(text)
+        doc = yaml.load(text, Loader=_ParamsLoader)  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as err:
         raise ConfigError(f'parameters file {str(path)!r} is not valid YAML: {err}') from err
     if doc is None:
+        _LOG.warning('parameters file %r is empty: the defaults are used', str(path))
         return {}
     if not isinstance(doc, dict):
         raise ConfigError(f'parameters file {str(path)!r} must be a mapping of node names')
-    merged: dict[str, Any] = {}
-    keys = sorted(doc, key=lambda k: (k != '/**', str(k)))
-    for key in keys:
-        body = doc[key]
+    if 'world_frame' in doc or any(isinstance(b, dict) and isinstance(
+            b.get('ros__parameters'), dict) and ({'calibration', 'calibrations'}
+                                                 & set(b['ros__parameters']))
+            for b in doc.values()):
+        raise ConfigError(f'{str(path)!r} is a result file of radar-calib calibrate, not a '
+                          'parameters file: give it as --calibration (evaluate, report) and '
+                          'the parameters with --params')
+    for key, body in doc.items():
         if not isinstance(body, dict) or 'ros__parameters' not in body:
             raise ConfigError(f'parameters file {str(path)!r}: entry {key!r} has no '
                               '"ros__parameters"')
-        name = str(key).lstrip('/')
-        if key != '/**' and node_name is not None and name.split('/')[-1] != node_name:
-            continue
-        params = body['ros__parameters'] or {}
+    chosen = ['/**'] if '/**' in doc else []
+    chosen += _node_entries(doc, node_name, path)
+    merged: dict[str, Any] = {}
+    for key in chosen:
+        params = doc[key]['ros__parameters'] or {}
         if not isinstance(params, dict):
             raise ConfigError(f'parameters file {str(path)!r}: ros__parameters of {key!r} '
                               'is not a mapping')
         merged.update(flatten(params))
+    if not merged:
+        _LOG.warning('parameters file %r sets no parameter: the defaults are used', str(path))
+    if node_name is None:
+        _warn_integers_for_doubles(merged, path)
     return merged
+
+
+def _node_entries(doc: Mapping[Any, Any], node_name: str | None, path: Path) -> list[Any]:
+    """The node entries (not ``/**``) of a parameters file that apply (see
+    :func:`read_params_file`): a site's one file for a radar node and a lidar driver was
+    refused for the driver's parameters, one for two radar nodes had its entries merged,
+    the alphabetically last winning (a probe's)."""
+    nodes = [key for key in doc if key != '/**']
+
+    def base(key: Any) -> str:
+        return str(key).strip('/').split('/')[-1]
+
+    if node_name is not None:
+        return sorted((k for k in nodes if base(k) == node_name), key=str)
+    if len(nodes) <= 1:
+        return nodes
+    ours = [k for k in nodes if base(k) == DEFAULT_NODE_NAME]
+    if len(ours) == 1:
+        return ours
+    names = ', '.join(str(k) for k in (ours or nodes))
+    raise ConfigError(f'parameters file {str(path)!r} holds the parameters of several nodes '
+                      f'({names}) and the offline tool cannot tell which one is this '
+                      "radar's: give a file with '/**' and that node's entry only")
+
+
+def _warn_integers_for_doubles(params: Mapping[str, Any], path: Path) -> None:
+    """The node (ROS 2) refuses an integer for a parameter of type double and does not
+    start; the offline tool reads one as a float. Said, so that the file a site tests
+    offline also starts its node."""
+    specs = {spec.name: spec for spec in parameter_specs()}
+    integers = [f'{name}: {value}' for name, value in params.items()
+                if name in specs and specs[name].type is float
+                and isinstance(value, int) and not isinstance(value, bool)]
+    if integers:
+        _LOG.warning('parameters file %r: %s given as integer%s; the ROS 2 node refuses an '
+                     'integer for a floating-point parameter and would not start: write '
+                     'them with a decimal point (e.g. %s.0)', str(path), ', '.join(integers),
+                     's' if len(integers) > 1 else '', integers[0].split(': ')[1])
 
 
 def default_params_yaml() -> str:

@@ -208,7 +208,8 @@ def evaluate_tracked(recording: Recording, tracked: TrackedTargets,
         raise InsufficientDataError(
             'evaluate', f'the calibration vehicle is never seen: none of the {n_tracks} tracks '
             f'lies within {metrics.PAPER_MAX_MEAN_OFFSET_M:g} m of it on average under this '
-            'calibration (wrong recording, vehicle parameters or clock offset?)')
+            'calibration' + (_other_site(calibration, extrinsics, recording) or
+                             ' (wrong recording, vehicle parameters or clock offset?)'))
     index = metrics.track_target_index(tracked, ids)
     paper = metrics.recording_metrics(recording, index, extrinsics, config)
     if paper.n_targets == 0:
@@ -236,6 +237,29 @@ def evaluate_tracked(recording: Recording, tracked: TrackedTargets,
     return Evaluation(dict(calibration), extrinsics, paper, bin_by_range(paper, range_edges_m),
                       ids, index, n_tracks, errors, recording, tracked, unlike_fraction,
                       paper_alike)
+
+
+#: A radar this far from every vehicle position of a recording sees none of it: a result
+#: of another site (no radar sees a car at this range).
+_OTHER_SITE_M = 2000.0
+
+
+def _other_site(calibration: Mapping[str, Any], extrinsics: Extrinsics,
+                recording: Recording) -> str | None:
+    """Why the vehicle cannot be seen when the calibration is of another site: the radar
+    kilometres from the drive (a probe's Sydney recording with an Ulm result read only
+    'never seen ... wrong recording, vehicle parameters or clock offset?')."""
+    drive = recording.vehicle.positions_m[:, :2]
+    if drive.size == 0:
+        return None
+    distance = float(np.min(np.linalg.norm(drive - extrinsics.translation_m[:2], axis=1)))
+    if not distance > _OTHER_SITE_M:
+        return None
+    zone = ('' if int(calibration['epsg']) == recording.frame.epsg else
+            f' (the result is in EPSG {calibration["epsg"]}, the recording in EPSG '
+            f'{recording.frame.epsg})')
+    return (f': the calibrated radar lies {distance / 1000:.1f} km from the nearest vehicle '
+            f'position of this recording{zone}, a result of another radar or site?')
 
 
 def evaluate_recording(recording: Recording, calibration: Mapping[str, Any],
@@ -327,7 +351,12 @@ def format_evaluation(evaluation: Evaluation) -> str:
         'and r_i alone',
         '   does not prove a calibration right: one that pushes the targets into the box '
         'scores higher;',
-        '   read it with delta_op and delta_p)',
+        '   read it with delta_op and delta_p. They count every target of the tracks within '
+        '5 m of the',
+        '   vehicle, as the paper\'s protocol does; calibrate\'s summary counts only the '
+        'targets its',
+        '   final fit kept, on and around the vehicle, and so reads lower on the same '
+        'recording)',
         *_unlike_lines(evaluation),
         '',
         f'  {"range [m]":<11}{"targets":>9}{"r_i [%]":>9}{"delta_op [m]":>14}'

@@ -50,7 +50,7 @@ from radar_calib_ros.errors import CalibrationError, DecodeError, InsufficientDa
 from radar_calib_ros.io import messages as msgs
 from radar_calib_ros.io.bag import write_bag
 from radar_calib_ros.recording import RecordingBuilder
-from radar_calib_ros.result import load_result, write_result_yaml
+from radar_calib_ros.result import load_result, parse_stamp, write_result_yaml
 from radar_calib_ros.types import FixSample, OdomSample, QualityReport, RadarFrame
 
 if TYPE_CHECKING:
@@ -196,6 +196,9 @@ class LiveCalibrator:
         # the frame of the buffered radar clouds (the first one's; see msgs.other_radar)
         self._radar_frame: str | None = None
         self.counters: Counter[str] = Counter()
+        # the counters when the buffer was last emptied: a failure names what was lost
+        # from the data it had, not since the start (a probe read an earlier replay's)
+        self._counters_at_clear: Counter[str] = Counter()
         self._throttle: dict[str, list[float]] = {}
         self._last_rejection_s = -math.inf
         # when buffered or arriving data were last lost for another reason than the window
@@ -498,6 +501,7 @@ class LiveCalibrator:
         self._ranges = self._builder.stamp_ranges_ns()
 
     def _clear_buffer(self) -> None:
+        self._counters_at_clear = Counter(self.counters)
         counters = self._builder.counters
         self._builder = RecordingBuilder(self._config)
         self._builder.counters = counters
@@ -540,8 +544,13 @@ class LiveCalibrator:
             # what the node refused on arrival is often the cause (every radar stamp 0, a
             # wrong radar.velocity_field): said with the reason (a twenty-sixth probe read
             # only 'no radar frame in the recording')
+            if isinstance(err, CalibrationCancelled):
+                # asked for (the node stopping): no failure to explain, nothing to blame
+                self._log('warn', f'calibration cancelled: {reason}')
+                return TriggerOutcome(False, f'calibration cancelled: {reason}')
             losses = self._losses()
-            reason += f' (messages the node refused or dropped: {losses})' if losses else ''
+            reason += (f' (messages the node refused or dropped since the buffer was last '
+                       f'emptied: {losses})' if losses else '')
             self._failure = reason
             self._log('error', f'calibration failed: {reason} (buffer: {frames} radar frames, '
                       f'{fixes} fixes, {odoms} odometry samples)')
@@ -681,9 +690,9 @@ class LiveCalibrator:
             transform = _transform_from(calibration, _stamp_ns(calibration.get('stamp')) or
                                         self._now_ns(), self._config)
         except CalibrationError as err:
-            self._file_problem = (f'result file {str(path)!r} is not a valid calibration: '
-                                  f'{err}; it is left in place and replaced only when a new '
-                                  'calibration succeeds')
+            # the error names the file already
+            self._file_problem = (f'not a valid calibration: {err}; it is left in place and '
+                                  'replaced only when a new calibration succeeds')
             self._log('error', self._file_problem)
             return None
         self._transform, self._calibration = transform, calibration
@@ -784,9 +793,10 @@ class LiveCalibrator:
 
     # reporting --------------------------------------------------------------------------
     def _losses(self, most: int = 4) -> str:
-        """The largest counts of messages refused or dropped since the start, e.g.
-        'radar.no_stamp 5651, radar.max_duration 20'."""
-        lost = sorted(((n, k.split('.', 1)[1]) for k, n in self.counters.items()
+        """The largest counts of messages refused or dropped since the buffer was last
+        emptied (the start, ~/reset, a restart of the stamps), e.g. 'radar.no_stamp 5651'."""
+        since = self.counters - self._counters_at_clear
+        lost = sorted(((n, k.split('.', 1)[1]) for k, n in since.items()
                        if k.startswith(('rejected.', 'dropped.')) and n > 0), reverse=True)
         return ', '.join(f'{name} {n}' for n, name in lost[:most])
 
@@ -883,14 +893,9 @@ def _transform_from(calibration: Mapping[str, Any], stamp_ns: int,
 
 def _stamp_ns(stamp: Any) -> int | None:
     """ISO 8601 text (or a datetime, as YAML may parse it) -> ns since the epoch."""
-    if isinstance(stamp, str):
-        try:
-            stamp = _dt.datetime.fromisoformat(stamp)
-        except ValueError:
-            return None
-    if not isinstance(stamp, _dt.datetime):
+    when = parse_stamp(stamp)
+    if when is None:
         return None
-    when: _dt.datetime = stamp if stamp.tzinfo else stamp.replace(tzinfo=_dt.timezone.utc)
     return int(when.timestamp()) * 1_000_000_000 + when.microsecond * 1000
 
 

@@ -803,11 +803,17 @@ class RecordingBuilder:
             lat, lon, _ = frame.utm_to_geodetic(utm)
         else:
             no_altitude = self.counters.get('fixes_altitude_nan', 0)
-            reason = ('no valid NavSatFix' + (
-                f' ({no_altitude} of {self.counters["fixes"]} have a latitude and longitude '
-                'but no altitude (NaN): the radar\'s height needs the vehicle\'s)'
-                if no_altitude else '') + (' (Odometry positions are used only with '
-                                           'vehicle.odom_is_utm)' if odoms else ''))
+            no_fix = self.counters.get('fixes_no_fix', 0)
+            reason = 'no valid NavSatFix'
+            if no_altitude:
+                reason += (f' ({no_altitude} of {self.counters["fixes"]} have a latitude and '
+                           'longitude but no altitude (NaN): the radar\'s height needs the '
+                           'vehicle\'s)')
+            if no_fix and no_fix == self.counters.get('fixes', 0):
+                reason += (f' (all {no_fix} report no fix, status -1: the receiver had no '
+                           'solution during the whole recording)')
+            if odoms:
+                reason += ' (Odometry positions are used only with vehicle.odom_is_utm)'
             raise InsufficientDataError('read', f'no vehicle pose: {reason}')
         if stamps.size < 2:
             raise InsufficientDataError('read', f'only {stamps.size} vehicle pose(s)')

@@ -32,6 +32,29 @@ RESULT_KEYS = ('world_frame', 'radar_frame', 'epsg', 'translation', 'quaternion_
                'stamp', 'quality')
 
 
+#: ISO 8601 basic format, UTC: '20261127T082548Z'. Not the extended '2026-11-27T08:25:48+00:00':
+#: YAML 1.1 reads that as a timestamp, and Jazzy's ``ros2 param load`` (rclpy re-parses each
+#: value as YAML) then sent a datetime as a string parameter and crashed on the result file
+#: (a probe on a real Jazzy build).
+STAMP_FORMAT = '%Y%m%dT%H%M%SZ'
+
+
+def parse_stamp(stamp: Any) -> _dt.datetime | None:
+    """A result's ``stamp`` (basic or extended ISO 8601, or the datetime YAML made of the
+    extended one) as an aware datetime; None where it is none of them."""
+    if isinstance(stamp, str):
+        try:
+            stamp = _dt.datetime.strptime(stamp, STAMP_FORMAT).replace(tzinfo=_dt.timezone.utc)
+        except ValueError:
+            try:
+                stamp = _dt.datetime.fromisoformat(stamp)
+            except ValueError:
+                return None
+    if not isinstance(stamp, _dt.datetime):
+        return None
+    return stamp if stamp.tzinfo else stamp.replace(tzinfo=_dt.timezone.utc)
+
+
 def extrinsics_to_utm(extrinsics: Extrinsics,
                       frame: LocalFrame) -> tuple[np.ndarray, np.ndarray]:
     """(R_utm (3, 3), t_utm (3,)) of a local-frame calibration."""
@@ -69,7 +92,7 @@ def calibration_dict(extrinsics: Extrinsics, frame: LocalFrame, *, world_frame: 
         'longitude': float(lon[0]),
         'altitude': float(alt[0]),
         'boresight_azimuth_deg': float(math.degrees(true_azimuth) % 360.0),
-        'stamp': stamp or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds'),
+        'stamp': stamp or _dt.datetime.now(_dt.timezone.utc).strftime(STAMP_FORMAT),
         'quality': _plain(dict(quality or {})),
     }
 
@@ -146,6 +169,15 @@ def write_atomic(path: str | Path, text: str) -> None:
     permissions a plainly created file gets (mkstemp's 0600 would keep a node running as
     another user from reading the result)."""
     path = Path(path)
+    if path.exists() and not path.is_file() and not path.is_dir():
+        # a device or a pipe (--json /dev/stdout): written through, as a shell would; a
+        # rename would have replaced the device node itself (a probe's /dev/full, as root)
+        with open(path, 'w', encoding='utf-8') as fh:
+            fh.write(text)
+        return
+    # through a symbolic link to its file: the rename replaced the link by a plain file
+    # and left the file it named as it was
+    path = Path(os.path.realpath(path))
     _check_writable_place(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)

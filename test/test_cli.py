@@ -346,3 +346,110 @@ def test_report_reads_the_calibrated_radars_topic_as_evaluate_does(
             '--params', str(params), '--out', str(tmp_path / 'out')]
     assert cli.main(argv) == 0
     assert read == ['/south/points'] and asked == ['radar_sw']
+
+
+# --- outputs never replace inputs (an operator probe's findings) ------------------------
+
+def _small_bag(tmp_path: Path) -> Path:
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+    (bag / 'bag_0.mcap').write_bytes(b'x')
+    return bag
+
+
+@pytest.mark.parametrize('flags, inputs, named', [
+    (['--output', 'site.yaml', '--params', 'site.yaml'], ['site.yaml'], 'parameters file'),
+    (['--output', 'same.yaml', '--json', 'same.yaml'], [], 'name the same file'),
+    (['--output', 'bag/metadata.yaml'], [], 'file of the recording'),
+    (['--json', 'bag/bag_0.mcap'], [], 'file of the recording'),
+    (['--output', 'link.yaml', '--params', 'site.yaml'], ['site.yaml', 'link.yaml'],
+     'parameters file'),
+])
+def test_calibrate_refuses_outputs_that_would_replace_an_input(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+        flags: list[str], inputs: list[str], named: str) -> None:
+    monkeypatch.chdir(tmp_path)
+    bag = _small_bag(tmp_path)
+    before = {p: p.read_bytes() for p in bag.iterdir()}
+    for name in inputs:
+        if name == 'link.yaml':
+            (tmp_path / name).symlink_to(tmp_path / 'site.yaml')
+        else:
+            (tmp_path / name).write_text('/**:\n  ros__parameters:\n    vehicle.length: 4.9\n')
+    code, out, err = _run(['calibrate', 'bag', *flags], capsys)
+    assert code == 2 and named in err and err.count('\n') == 1 and out == ''
+    assert {p: p.read_bytes() for p in bag.iterdir()} == before
+    if inputs:
+        assert 'vehicle.length' in (tmp_path / 'site.yaml').read_text()
+
+
+def test_evaluate_refuses_its_json_onto_the_calibration(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / 'c.json').write_text('{"keep": 1}')
+    code, _, err = _run(['evaluate', str(_small_bag(tmp_path)), '--calibration',
+                         str(tmp_path / 'c.json'), '--json', str(tmp_path / 'c.json')], capsys)
+    assert code == 2 and 'is the calibration file' in err
+    assert (tmp_path / 'c.json').read_text() == '{"keep": 1}'
+
+
+def test_misplaced_options_are_refused(tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    bag = str(_small_bag(tmp_path))
+    code, _, err = _run(['calibrate', bag, '--output-dir', str(tmp_path / 'd')], capsys)
+    assert code == 2 and '--output-dir goes with --all-radars' in err
+    code, _, err = _run(['calibrate', bag, '--all-radars', '--jobs', '0'], capsys)
+    assert code == 2 and '--jobs 0' in err
+    (tmp_path / 'afile').write_text('x')
+    code, _, err = _run(['report', bag, '--calibration', str(tmp_path / 'afile'), '--out',
+                         str(tmp_path / 'afile')], capsys)
+    assert code == 2 and 'is a file, not a directory' in err
+    code, out, err = _run(['demo', '--duration', '5', '--out', str(tmp_path / 'demo')], capsys)
+    assert code == 2 and 'outside [10, 3600]' in err and out == ''
+
+
+def test_a_result_file_given_as_parameters_is_named(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from radar_calib_ros.io.geo import LocalFrame
+    from radar_calib_ros.result import calibration_dict, write_result_yaml
+    from radar_calib_ros.types import Extrinsics
+    import numpy as np
+    write_result_yaml(tmp_path / 'r.yaml', calibration_dict(
+        Extrinsics(np.eye(3), np.array([1.0, 2.0, 500.0])), LocalFrame.at(48.4, 9.99)))
+    code, _, err = _run(['calibrate', str(_small_bag(tmp_path)), '--params',
+                         str(tmp_path / 'r.yaml')], capsys)
+    assert code == 2 and 'is a result file of radar-calib calibrate, not a parameters' in err
+
+
+def test_a_reader_gone_from_the_pipe_does_not_fail_the_run(tmp_path: Path) -> None:
+    """`radar-calib ... | head -1`: the output written, exit code of the work, no 'Broken
+    pipe' error after the result was written."""
+    import os
+
+    from radar_calib_ros.cli import _PipeSafe
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    stream = os.fdopen(write_end, 'w')
+    try:
+        safe = _PipeSafe(stream)
+        assert safe.write('summary\n') == len('summary\n')   # no BrokenPipeError
+        assert safe.write('more\n') == len('more\n')
+        stream.write('flushed at exit\n')
+        stream.flush()     # stdout now leads to /dev/null: the interpreter's flush passes
+    finally:
+        stream.close()
+
+
+def test_the_advice_is_not_repeated_into_a_pipe(monkeypatch: pytest.MonkeyPatch,
+                                                tmp_path: Path) -> None:
+    """`| cat` or `| tee log` show the summary on the same terminal: no second copy."""
+    import os
+    import sys
+
+    from radar_calib_ros import cli
+    monkeypatch.setattr(sys, 'stderr', _Stream(True))
+    read_end, write_end = os.pipe()
+    with os.fdopen(write_end, 'w') as pipe, open(tmp_path / 'log', 'w') as file:
+        assert cli._echo_advice(pipe) is False
+        assert cli._echo_advice(file) is True
+    os.close(read_end)

@@ -1,6 +1,7 @@
 """The typed configuration: defaults file, nested/dotted keys, and every rejection path."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import pytest
@@ -104,3 +105,38 @@ def test_flatten_rejects_duplicates() -> None:
 def test_to_flat_round_trip() -> None:
     cfg = CalibConfig.from_mapping({'cluster.eps_m': 1.25, 'world.epsg': 32633})
     assert CalibConfig.from_mapping(cfg.to_flat()) == cfg
+
+
+def test_offline_sections_of_several_nodes(tmp_path: Path,
+                                           caplog: pytest.LogCaptureFixture) -> None:
+    """The offline tool takes '/**' and the calibrator's entry, leaves other nodes' alone,
+    and refuses to guess between two calibrators (a probe's site file: merged, the last
+    winning)."""
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    vehicle: {length: 4.2}\n'
+                    'velodyne_driver_node:\n  ros__parameters: {rpm: 600, device_ip: x}\n'
+                    '/site/calibrator:\n  ros__parameters:\n    radar.frame_id: south\n')
+    config = CalibConfig.from_file(path)
+    assert config.radar.frame_id == 'south' and config.vehicle.length == 4.2
+    path.write_text('/**:\n  ros__parameters: {vehicle.length: 4.2}\n'
+                    '/radar_south/calibrator:\n  ros__parameters: {radar.frame_id: south}\n'
+                    '/radar_north/calibrator:\n  ros__parameters: {radar.frame_id: north}\n')
+    with pytest.raises(ConfigError, match='several nodes .*radar_south.*radar_north'):
+        CalibConfig.from_file(path)
+    path.write_text('')
+    with caplog.at_level(logging.WARNING):
+        assert CalibConfig.from_file(path) == CalibConfig()
+    assert 'is empty: the defaults are used' in caplog.text
+
+
+def test_floats_read_as_ros2_reads_them_and_integers_for_doubles_warned(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    sync.time_offset: 4e-2\n'
+                    '    buffer.max_duration: 600\n    vehicle.length: 5\n')
+    with caplog.at_level(logging.WARNING):
+        config = CalibConfig.from_file(path)
+    assert config.sync.time_offset == pytest.approx(0.04)
+    assert config.buffer.max_duration == 600.0
+    assert 'buffer.max_duration: 600, vehicle.length: 5 given as integers' in caplog.text
+    assert 'would not start' in caplog.text

@@ -129,6 +129,35 @@ def test_written_results_load_in_any_zone(tmp_path: Path, lat: float, lon: float
     assert load_result(tmp_path / 'r.yaml')['epsg'] == frame.epsg
 
 
+def test_every_value_of_result_yaml_survives_ros2_param_load(tmp_path: Path) -> None:
+    """Jazzy's ``ros2 param load`` re-parses each value's text as YAML: the extended ISO
+    stamp came back a datetime and crashed it (a probe on a real Jazzy build). Every value
+    must come back as what it was, and the stamp still read as the time it says."""
+    import datetime as dt
+
+    from radar_calib_ros.live import _stamp_ns
+    path = _result_file(tmp_path, quality={
+        'inlier_ratio': 0.8, 'passes': 4, 'sigma': {'rotation_deg': 0.2},
+        'sigma_rotation_covers': 'roll, pitch, yaw',
+        'advice': ["The vehicle's front was seen from bearings 7 deg apart: drive again.",
+                   'Drive "northbound" again: it shows new sides.']})
+    body = yaml.safe_load(path.read_text())['/**']['ros__parameters']
+
+    def leaves(node: object, name: str = '') -> list[tuple[str, object]]:
+        if isinstance(node, dict):
+            return [x for k, v in node.items() for x in leaves(v, f'{name}.{k}')]
+        return [(name, node)]
+    for name, value in leaves(body):
+        again = yaml.safe_load(str(value))   # what rclpy's get_parameter_value does
+        assert type(again) is type(value) and again == value, name
+    stamp = body['calibration']['stamp']
+    assert stamp.endswith('Z') and len(stamp) == 16
+    now = dt.datetime.now(dt.timezone.utc).timestamp()
+    assert abs(_stamp_ns(stamp) * 1e-9 - now) < 60
+    # files written before (extended form, or the datetime YAML made of it) still load
+    assert _stamp_ns('2026-11-27T08:25:48+00:00') == _stamp_ns('20261127T082548Z')
+
+
 def test_writing_under_a_file_or_onto_a_directory_names_it(tmp_path: Path) -> None:
     (tmp_path / 'plain').write_text('x')
     with pytest.raises(NotADirectoryError, match="'.*plain' is a file, not a directory"):

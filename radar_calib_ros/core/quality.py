@@ -109,13 +109,17 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     n_passes = selection.n_passes or int(passes.shape[0])
     headings = _pass_headings_deg(targets, passes)
     advice = list(refinement.diagnostics.get('advice', [])) if refinement is not None else []
-    # the advice counts the passes the final fit used where it used more than stage 6
-    # agreed on (a bus: 3 agreed, all 6 were fitted, and 'drive at least 5 times' misled)
-    used = max(n_passes, refinement.n_passes if refinement is not None else 0)
-    advice += _advice(used, headings, sigma, paper.inlier_ratio, misfit,
-                      refinement is None, config)
     fitted = (np.asarray(refinement.diagnostics['residuals']['target_index'], np.int64)
               if refinement is not None and 'residuals' in refinement.diagnostics else index)
+    drives = drives_through_view(extrinsics, recording, fitted, config)
+    unused = [d for d in drives if d.n_targets < _USED_DRIVE_TARGETS]
+    # the passes the final fit used where it used more than stage 6 agreed on (a bus: 3
+    # agreed, all 6 were fitted, and 'drive at least 5 times' misled), counted as drives
+    # through the view (the fit's own groups split a drive at a gap), the same number in
+    # the advice and in ``passes`` (a probe read 'passes 3' over 'Only 4 passes')
+    used = max(n_passes, len(drives) - len(unused))
+    advice += _advice(used, headings, sigma, paper.inlier_ratio, misfit,
+                      refinement is None, config)
     if not_rigid is not None:
         share, rigid_misfit = not_rigid
         advice.append(f'{100 * share:.0f} % of the targets in the vehicle\'s tracks do not move '
@@ -124,8 +128,6 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
                       f'lie {paper.outlier_distance_m:.1f} m from it on average, but only '
                       f'{rigid_misfit:.1f} m of those that move with it, so vehicle.* look '
                       'right. The final fit uses only targets that move with the vehicle.')
-    drives = drives_through_view(extrinsics, recording, fitted, config)
-    unused = [d for d in drives if d.n_targets < _USED_DRIVE_TARGETS]
     if unused:
         advice.append(_unused_drives_advice(unused, len(drives)))
     extra = {
@@ -160,7 +162,7 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         tracks_used=len(selection.accepted_track_ids),
         hypotheses=len(selection.hypotheses),
         correspondences=int(selection.n_correspondences),
-        passes=int(n_passes),
+        passes=int(used),
         time_offset_s=float(extrinsics.time_offset_s + config.sync.time_offset),
         sigma_translation_m=sigma['translation'],
         sigma_along_boresight_m=sigma['along'],

@@ -132,6 +132,11 @@ def select_topics(topics: Mapping[str, str], config: CalibConfig) -> dict[str, s
     if chosen['radar'] is None:
         raise BagReadError(f'no radar topic ({" or ".join(RADAR_TYPES)}) in the bag; topics '
                            f'there: {_listing(topics)}')
+    if chosen['navsat'] is None and chosen['odom'] is None and not absent:
+        # the wrong bag (the radar's own recording), not data that cannot be calibrated
+        raise BagReadError(f'no vehicle pose topic ({" or ".join(ROLE_TYPES["navsat"])} or '
+                           f'{" or ".join(ROLE_TYPES["odom"])}) in the bag; topics there: '
+                           f'{_listing(topics)}')
     for role, missing in absent.items():
         other = _POSE_ROLES[1 - _POSE_ROLES.index(role)]
         if chosen[other] is None:

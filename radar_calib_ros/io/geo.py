@@ -14,6 +14,7 @@ true north) rather than from a sign convention; ``test/io/test_geo.py`` checks i
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pyproj
@@ -102,26 +103,26 @@ class LocalFrame:
     def geodetic_to_local(self, lat_deg: ArrayLike, lon_deg: ArrayLike,
                           alt_m: ArrayLike) -> F64:
         """(n,) lat, lon [deg], alt [m] -> (n, 3) local [m]."""
-        x, y = self._to_local.transform(np.asarray(lon_deg, float), np.asarray(lat_deg, float))
+        x, y = _project(self._to_local.transform, lon_deg, lat_deg)
         return np.column_stack([np.atleast_1d(x), np.atleast_1d(y),
                                 np.atleast_1d(np.asarray(alt_m, float))])
 
     def local_to_geodetic(self, points_m: ArrayLike) -> tuple[F64, F64, F64]:
         """(n, 3) local -> lat [deg], lon [deg], alt [m], each (n,)."""
         p = np.atleast_2d(np.asarray(points_m, float))
-        lon, lat = self._to_local.transform(p[:, 0], p[:, 1], direction='INVERSE')
+        lon, lat = _project(self._to_local.transform, p[:, 0], p[:, 1], direction='INVERSE')
         return np.atleast_1d(lat), np.atleast_1d(lon), p[:, 2].copy()
 
     def geodetic_to_utm(self, lat_deg: ArrayLike, lon_deg: ArrayLike, alt_m: ArrayLike) -> F64:
         """(n,) lat, lon, alt -> (n, 3) easting, northing, altitude."""
-        e, n = self._to_utm.transform(np.asarray(lon_deg, float), np.asarray(lat_deg, float))
+        e, n = _project(self._to_utm.transform, lon_deg, lat_deg)
         return np.column_stack([np.atleast_1d(e), np.atleast_1d(n),
                                 np.atleast_1d(np.asarray(alt_m, float))])
 
     def utm_to_geodetic(self, points_utm: ArrayLike) -> tuple[F64, F64, F64]:
         """(n, 3) easting, northing, altitude -> lat, lon, alt."""
         p = np.atleast_2d(np.asarray(points_utm, float))
-        lon, lat = self._to_utm.transform(p[:, 0], p[:, 1], direction='INVERSE')
+        lon, lat = _project(self._to_utm.transform, p[:, 0], p[:, 1], direction='INVERSE')
         return np.atleast_1d(lat), np.atleast_1d(lon), p[:, 2].copy()
 
     def local_to_utm(self, points_m: ArrayLike) -> F64:
@@ -163,11 +164,25 @@ class LocalFrame:
         return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def _project(fn: Any, x: ArrayLike, y: ArrayLike, **kwargs: Any) -> tuple[F64, F64]:
+    """pyproj's transform of coordinate arrays, (n,) each. One point goes as two floats:
+    pyproj 3.7 turns a one-element array into a scalar itself, which NumPy 1.25-1.26 (ROS 2
+    Jazzy's on Ubuntu 24.04) warns is deprecated, on every calibration (a probe on a real
+    Jazzy build; with warnings as errors the node reported it as an internal error)."""
+    xs = np.atleast_1d(np.asarray(x, float))
+    ys = np.atleast_1d(np.asarray(y, float))
+    if xs.size == 1 and ys.size == 1:
+        a, b = fn(float(xs[0]), float(ys[0]), **kwargs)
+        return np.array([a], float), np.array([b], float)
+    a, b = fn(xs, ys, **kwargs)
+    return np.asarray(a, float), np.asarray(b, float)
+
+
 def _convergence(proj: pyproj.Proj, lat_deg: ArrayLike, lon_deg: ArrayLike) -> F64:
     lat = np.atleast_1d(np.asarray(lat_deg, float))
     lon = np.atleast_1d(np.asarray(lon_deg, float))
     step = 1e-5  # deg of latitude, ~1.1 m: far below any curvature that matters here
-    x0, y0 = proj(lon, lat)
-    x1, y1 = proj(lon, lat + step)
+    x0, y0 = _project(proj, lon, lat)
+    x1, y1 = _project(proj, lon, lat + step)
     return np.asarray(np.arctan2(np.asarray(x1) - np.asarray(x0),
                                  np.asarray(y1) - np.asarray(y0)), np.float64)

@@ -297,12 +297,12 @@ def test_select_by_type_when_default_absent() -> None:
     topics = {'/sensors/radar0': m.POINTCLOUD2, '/gnss': m.NAVSATFIX, '/ins': m.ODOMETRY}
     assert select_topics(topics, CalibConfig()) == {
         'radar': '/sensors/radar0', 'navsat': '/gnss', 'odom': '/ins'}
-    assert select_topics({'/r': m.RADARSCAN}, CalibConfig()) == {
-        'radar': '/r', 'navsat': None, 'odom': None}
+    assert select_topics({'/r': m.RADARSCAN, '/o': m.ODOMETRY}, CalibConfig()) == {
+        'radar': '/r', 'navsat': None, 'odom': '/o'}
 
 
 def test_select_default_name_with_other_type_falls_back_to_type() -> None:
-    topics = {'/radar/points': 'sensor_msgs/msg/Imu', '/r': m.POINTCLOUD2}
+    topics = {'/radar/points': 'sensor_msgs/msg/Imu', '/r': m.POINTCLOUD2, '/f': m.NAVSATFIX}
     assert select_topics(topics, CalibConfig())['radar'] == '/r'
 
 
@@ -668,3 +668,29 @@ def test_write_bag_refuses_existing_path(tmp_path: Path) -> None:
         write_bag(tmp_path, [])
     with pytest.raises(BagReadError, match="unknown bag storage 'rosbag1'"):
         write_bag(tmp_path / 'new', [], storage='rosbag1')
+
+
+def test_a_bag_without_any_vehicle_pose_topic_is_the_wrong_bag(
+        tmp_path: Path, ts: Any) -> None:
+    """The radar's own recording (no NavSatFix, no Odometry): exit 2 with the topics there,
+    as for a bag without a radar topic, not exit 1 'no valid NavSatFix'."""
+    s = scene()
+    radar = (item for item in bag_messages(ts, s) if item[0] == '/radar/points')
+    write_bag(tmp_path / 'radar_only', radar, typestore=ts)
+    with pytest.raises(BagReadError, match=r'no vehicle pose topic .* topics there: '
+                       '/radar/points'):
+        read_recording(tmp_path / 'radar_only', CalibConfig())
+
+
+def test_fixes_that_all_report_no_fix_are_counted_in_the_reason(tmp_path: Path,
+                                                                ts: Any) -> None:
+    s = scene()
+
+    def no_fix() -> Iterator[Item]:
+        for topic, msgtype, stamp, msg in bag_messages(ts, s):
+            if topic == '/vehicle/fix':
+                msg.status.status = -1
+            yield topic, msgtype, stamp, msg
+    write_bag(tmp_path / 'no_fix', no_fix(), typestore=ts)
+    with pytest.raises(InsufficientDataError, match=f'all {len(s["stamps"])} report no fix'):
+        read_recording(tmp_path / 'no_fix', CalibConfig())
