@@ -653,8 +653,14 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as err:  # argparse: 0 for --help, 2 for bad usage
         return int(err.code or 0)
+    fresh = not logging.getLogger().handlers   # not a host's (pytest's, an embedding's)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format='%(levelname)s %(name)s: %(message)s')
+    if fresh and not args.verbose:
+        # 'warning: ...' as the tool's own lines say it, not 'WARNING radar_calib_ros.io.bag:
+        # ...' beside them (a probe's finding); -v keeps the logger names
+        for handler in logging.getLogger().handlers:
+            handler.setFormatter(_PlainFormatter())
     # one filter per handler: each passes a record the others have passed too
     filters = [(handler, _Once()) for handler in logging.getLogger().handlers]
     for handler, once in filters:
@@ -664,6 +670,11 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     finally:
         for handler, once in filters:
             handler.removeFilter(once)
+
+
+class _PlainFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        return f'{record.levelname.lower()}: {record.getMessage()}'
 
 
 class _PipeSafe:

@@ -255,11 +255,12 @@ def _other_site(calibration: Mapping[str, Any], extrinsics: Extrinsics,
     distance = float(np.min(np.linalg.norm(drive - extrinsics.translation_m[:2], axis=1)))
     if not distance > _OTHER_SITE_M:
         return None
-    zone = ('' if int(calibration['epsg']) == recording.frame.epsg else
-            f' (the result is in EPSG {calibration["epsg"]}, the recording in EPSG '
-            f'{recording.frame.epsg})')
+    if int(calibration['epsg']) != recording.frame.epsg:
+        # a distance through another zone's projection means little that far away
+        return (f': the result is in EPSG {calibration["epsg"]}, the recording in EPSG '
+                f'{recording.frame.epsg}, a UTM zone apart: a result of another site?')
     return (f': the calibrated radar lies {distance / 1000:.1f} km from the nearest vehicle '
-            f'position of this recording{zone}, a result of another radar or site?')
+            'position of this recording: a result of another radar or site?')
 
 
 def evaluate_recording(recording: Recording, calibration: Mapping[str, Any],

@@ -453,3 +453,12 @@ def test_the_advice_is_not_repeated_into_a_pipe(monkeypatch: pytest.MonkeyPatch,
         assert cli._echo_advice(pipe) is False
         assert cli._echo_advice(file) is True
     os.close(read_end)
+
+
+def test_log_warnings_read_as_the_tools_own() -> None:
+    import logging
+
+    from radar_calib_ros.cli import _PlainFormatter
+    record = logging.LogRecord('radar_calib_ros.io.bag', logging.WARNING, __file__, 1,
+                               '%r has no metadata.yaml', ('bag',), None)
+    assert _PlainFormatter().format(record) == "warning: 'bag' has no metadata.yaml"

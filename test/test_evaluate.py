@@ -219,3 +219,8 @@ def test_cli_vehicle_never_seen_exits_1(sim: SimulationSummary, tmp_path: Path,
                            '--params', str(sim.paths.params)], capsys)
     assert code == 1
     assert 'never seen' in err and err.count('\n') == 1 and out == ''
+    assert 'another site' not in err   # 2 km: a wrong calibration, not another site
+    write_result_yaml(far, _calibration(truth, shift_m=(0.0, 50_000.0, 0.0)))
+    code, out, err = _run(['evaluate', str(sim.paths.bag), '--calibration', str(far),
+                           '--params', str(sim.paths.params)], capsys)
+    assert code == 1 and 'the calibrated radar lies 50.0 km from the nearest vehicle' in err
