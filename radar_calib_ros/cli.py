@@ -356,9 +356,10 @@ def _refuse_overwriting_inputs(outputs: dict[str, str | None],
     bag_files: set[Path] = set()
     if bag:
         root = same(bag)
+        if root.name == 'metadata.yaml' and root.is_file():
+            root = root.parent    # the bag given by its metadata.yaml
         if root.is_file():
-            bag_files = {root} | ({root.parent / 'metadata.yaml'}
-                                  if root.name == 'metadata.yaml' else set())
+            bag_files = {root}
         elif root.is_dir():
             bag_files = {p for p in root.iterdir() if p.name == 'metadata.yaml'
                          or p.name.endswith(_BAG_FILE_SUFFIXES)}

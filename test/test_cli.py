@@ -363,6 +363,7 @@ def _small_bag(tmp_path: Path) -> Path:
     (['--output', 'same.yaml', '--json', 'same.yaml'], [], 'name the same file'),
     (['--output', 'bag/metadata.yaml'], [], 'file of the recording'),
     (['--json', 'bag/bag_0.mcap'], [], 'file of the recording'),
+    (['--output', 'bag/bag_0.mcap', '--bag-as-metadata'], [], 'file of the recording'),
     (['--output', 'link.yaml', '--params', 'site.yaml'], ['site.yaml', 'link.yaml'],
      'parameters file'),
 ])
@@ -377,7 +378,10 @@ def test_calibrate_refuses_outputs_that_would_replace_an_input(
             (tmp_path / name).symlink_to(tmp_path / 'site.yaml')
         else:
             (tmp_path / name).write_text('/**:\n  ros__parameters:\n    vehicle.length: 4.9\n')
-    code, out, err = _run(['calibrate', 'bag', *flags], capsys)
+    bag_arg = 'bag'
+    if '--bag-as-metadata' in flags:   # the bag given by its metadata.yaml
+        flags, bag_arg = [f for f in flags if f != '--bag-as-metadata'], 'bag/metadata.yaml'
+    code, out, err = _run(['calibrate', bag_arg, *flags], capsys)
     assert code == 2 and named in err and err.count('\n') == 1 and out == ''
     assert {p: p.read_bytes() for p in bag.iterdir()} == before
     if inputs:
