@@ -427,6 +427,39 @@ def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:
         f'sync.max_pose_gap{beside}')
 
 
+#: Moving time of the vehicle while the radar recorded below which a failure of stage 6 is
+#: said to be the drive's [s]: three passes through a view take more.
+_SHORT_DRIVE_S = 20.0
+
+
+def _short_drive_note(recording: Recording, config: CalibConfig) -> str | None:
+    """Where stage 6 failed on a drive too short for three passes: the cause in the user's
+    words (a probe's parked car and one-pass recording read 'hypotheses do not agree' and a
+    sparse-radar retry, not that the vehicle hardly drove)."""
+    vehicle = recording.vehicle
+    stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns[[0, -1]],
+                                       config.sync.time_offset)
+    during = (vehicle.stamps_ns >= stamps[0]) & (vehicle.stamps_ns <= stamps[1])
+    if during.sum() < 2:
+        return None
+    t = vehicle.stamps_ns[during] * 1e-9
+    speed = np.hypot(vehicle.velocities_mps[during, 0], vehicle.velocities_mps[during, 1])
+    dt = np.diff(t)
+    moving = speed[1:] >= hypotheses.TRACKABLE_SPEED_MPS
+    moving_s = float(dt[moving].sum())
+    if moving_s >= _SHORT_DRIVE_S:
+        return None
+    driven = float((speed[1:] * dt)[moving].sum())
+    if moving_s < 1.0:
+        return (f'The calibration vehicle hardly moved while the radar recorded ({driven:.0f} m'
+                f' at 1 m/s or more in {t[-1] - t[0]:.0f} s): drive it through the view, at '
+                f'least {config.hypotheses.min_passes} times, on different lanes and in both '
+                'directions.')
+    return (f'The calibration vehicle drove only {driven:.0f} m in {moving_s:.0f} s while the '
+            f'radar recorded: {config.hypotheses.min_passes} passes through the view take '
+            'more; record a longer drive.')
+
+
 #: Radar frames outside the pose stream worth a note (share), and a jump of the radar's
 #: stamps worth naming [s].
 _OUTSIDE_POSES_SHARE = 0.05
@@ -1085,7 +1118,12 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         # ~1.2 targets on the car: refused with the defaults, 15 cm with these). So on such
         # a failure, and only then, stages 2-6 run again with them, and a note says so.
         stage_6 = err.stage == 'hypotheses' and type(err) is InsufficientDataError
+        # said instead of what else was tried, should that fail too
+        short = _short_drive_note(recording, config) if stage_6 else None
         sparse = _sparse_radar_config(recording, tracked, config) if stage_6 else None
+        if sparse is None and short is not None:
+            raise InsufficientDataError(err.stage,
+                                        f'{err.reason.rstrip(".")}. {short}') from err
         if sparse is None:
             mirrored = _mirrored_axis(recording, config) if stage_6 else None
             if mirrored is not None:
@@ -1107,6 +1145,9 @@ def _run_calibration(recording: Recording, config: CalibConfig,
             ground, clutter_note, tracks, hyps, selection = _stages_4_to_6(
                 recording, tracked, sparse_config, stage)
         except InsufficientDataError as second:
+            if short is not None:
+                raise InsufficientDataError(err.stage,
+                                            f'{err.reason.rstrip(".")}. {short}') from err
             raise InsufficientDataError(
                 err.stage, f'{err.reason.rstrip(".")}. The radar reports few targets per road '
                 f'user (a median of {per_frame:g} a frame in its tracks); the settings for '

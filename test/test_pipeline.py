@@ -727,3 +727,30 @@ def test_a_clock_offset_held_at_the_limit_of_the_search_is_not_taken_for_the_clo
     unshifted = pipeline._held_clock_note(0.15, 0.0, config)
     assert 'vehicle.*' not in unshifted and 'held at +0.000 s on top of sync.time_offset. Set' in (
         unshifted)
+
+
+@pytest.mark.parametrize('speed, seconds, expected', [
+    (0.0, 60.0, 'hardly moved while the radar recorded (0 m'),
+    (8.0, 12.0, 'drove only 88 m in 11 s while the radar recorded'),
+    (8.0, 60.0, None),
+])
+def test_a_failure_on_a_drive_too_short_names_the_drive(speed: float, seconds: float,
+                                                        expected: str | None) -> None:
+    """A parked car and a one-pass recording read 'hypotheses do not agree' and a
+    sparse-radar retry (an operator probe's): the note names the drive."""
+    from types import SimpleNamespace
+
+    from radar_calib_ros.types import VehicleTrack
+    t = np.arange(0.0, seconds, 0.1)
+    n = t.size
+    velocity = np.column_stack([np.full(n, speed), np.zeros(n), np.zeros(n)])
+    vehicle = VehicleTrack((t * 1e9).astype(np.int64) + 10**18, np.cumsum(velocity, 0) * 0.1,
+                           np.zeros(n), velocity, np.zeros(n))
+    recording = SimpleNamespace(vehicle=vehicle,
+                                frame_stamps_ns=np.array([10**18, 10**18 + int(11e9)])
+                                if seconds < 20 else np.array([10**18, 10**18 + int(59e9)]))
+    note = pipeline._short_drive_note(recording, CalibConfig())  # type: ignore[arg-type]
+    if expected is None:
+        assert note is None
+    else:
+        assert note is not None and expected in note, note

@@ -710,7 +710,7 @@ def _no_cluster_reason(clusters: Sequence[_Cluster], hyps: Sequence[Hypothesis],
 
 
 #: Below this speed the vehicle gives too few moving targets to be tracked [m/s].
-_TRACKABLE_SPEED_MPS = 1.0
+TRACKABLE_SPEED_MPS = 1.0
 #: A group of hypotheses is taken for the vehicle when its tracks follow the vehicle in at
 #: least this share of the passes its calibration puts the vehicle in view (occlusion and
 #: stops cost a real vehicle a pass now and then; a chance match follows it once).
@@ -746,7 +746,7 @@ def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidF
 
     The group's merged transform (levelled sensor frame -> world) places the vehicle's
     reflection centre in the sensor's view at every pose sample. The vehicle counts as in
-    view where it moves (``_TRACKABLE_SPEED_MPS``), lies within the range at which the
+    view where it moves (``TRACKABLE_SPEED_MPS``), lies within the range at which the
     group's own tracks saw it and within the azimuths at which any track lies; such
     stretches at least ``hypotheses.min_track_length_m`` long are merged into passes as in
     :func:`count_passes`. A pass is followed when one of the group's tracks overlaps it in
@@ -777,7 +777,7 @@ def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidF
     seen_azimuth = np.arctan2(seen_xy[:, 1], seen_xy[:, 0])
     azimuth = np.arctan2(local[:, 1], local[:, 0])
     speed = np.hypot(vehicle.velocities_mps[:, 0], vehicle.velocities_mps[:, 1])
-    in_view = ((np.hypot(local[:, 0], local[:, 1]) <= reach) & (speed >= _TRACKABLE_SPEED_MPS)
+    in_view = ((np.hypot(local[:, 0], local[:, 1]) <= reach) & (speed >= TRACKABLE_SPEED_MPS)
                & (azimuth >= seen_azimuth.min()) & (azimuth <= seen_azimuth.max()))
     passes = passes_in_view_ns(vehicle, in_view, fit.translation_m[:2], reach, config)
     spans = np.array([[t.stamps_ns[0], t.stamps_ns[-1]] for t in group], np.int64)
