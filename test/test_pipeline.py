@@ -754,3 +754,21 @@ def test_a_failure_on_a_drive_too_short_names_the_drive(speed: float, seconds: f
         assert note is None
     else:
         assert note is not None and expected in note, note
+
+
+def test_a_failure_that_names_the_time_offset_to_set_says_it_once(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Stage 6 found the 18 s that make the passes agree: the notes of the recorder's clock
+    (the same 18 s, frames outside the poses) would say it twice more (an operator probe)."""
+    def fail(*args: Any, **kwargs: Any) -> None:
+        raise InsufficientDataError('hypotheses', 'no consistent track; they agree with the '
+                                    'radar stamps shifted by +18 s: set sync.time_offset to '
+                                    '18 and calibrate again')
+    monkeypatch.setattr(pipeline, '_calibration_clock_rejoined', fail)
+    rec = _recording(0.1)
+    behind = dataclasses.replace(rec, counters={**rec.counters,
+                                                'radar_stamp_offset_ms': -18000})
+    assert pipeline._clock_notes(behind, CalibConfig())   # it would have said it again
+    with pytest.raises(InsufficientDataError) as err:
+        pipeline.run_calibration(behind, CalibConfig())
+    assert str(err.value).count('sync.time_offset') == 1
