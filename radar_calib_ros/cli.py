@@ -178,9 +178,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     _refuse_overwriting_inputs({'--output': args.output, '--json': args.json},
                                {'parameters file (--params)': args.params}, args.bag)
     _check_writable(args.output, args.json)
-    if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
-        raise ResultFileError(f'--report {args.report!r} is a file, not a directory: give '
-                              'the directory for the figures and report.html')
+    _refuse_file_as_directory('--report', args.report)
     config = _radar_of_frame(args.bag, config)
     _refuse_ambiguous_radar(args.bag, config)
     _warn_frame_id(args.bag, config)
@@ -257,9 +255,7 @@ def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
     from radar_calib_ros.report import report_recording
     start = time.perf_counter()
     config = _load_config(args.params)
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        raise ResultFileError(f'--out {args.out!r} is a file, not a directory: give the '
-                              'directory for the figures and report.html')
+    _refuse_file_as_directory('--out', args.out)
     calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
     files = report_recording(args.out, recording, calibration, config,
                              truth=_ground_truth(args.bag), source=str(args.bag))
@@ -339,6 +335,13 @@ def _check_writable(*paths: str | None) -> None:
                                   'not a writable folder')
 
 
+def _refuse_file_as_directory(flag: str, path: str | None) -> None:
+    """ResultFileError (exit 2) before the work when the report's directory is a file."""
+    if path and Path(path).exists() and not Path(path).is_dir():
+        raise ResultFileError(f'{flag} {path!r} is a file, not a directory: give the '
+                              'directory for the figures and report.html')
+
+
 #: Files of a rosbag2 recording an output must never replace.
 _BAG_FILE_SUFFIXES = ('.mcap', '.db3', '.db3-wal', '.db3-shm')
 
@@ -350,6 +353,8 @@ def _refuse_overwriting_inputs(outputs: dict[str, str | None],
     ``--output site.yaml`` with ``--params site.yaml`` replaced the site's parameters by
     the result, ``--output bag/metadata.yaml`` made the recording unreadable, ``--output
     same --json same`` left a result.yaml holding JSON."""
+    from radar_calib_ros.result import is_stream
+
     def same(path: str) -> Path:
         return Path(os.path.realpath(path))
 
@@ -365,8 +370,7 @@ def _refuse_overwriting_inputs(outputs: dict[str, str | None],
                          or p.name.endswith(_BAG_FILE_SUFFIXES)}
     taken: dict[Path, str] = {}
     for flag, path in outputs.items():
-        if not path or (Path(path).exists() and not Path(path).is_file()
-                        and not Path(path).is_dir()):
+        if not path or is_stream(path):
             continue   # unset, or a device or pipe (/dev/stdout): nothing to replace
         target = same(path)
         if target in taken:
@@ -482,11 +486,10 @@ def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
             return 2
         shutil.rmtree(bag)  # our own earlier demo recording: replace it
     # what simulate would refuse, refused before anything is said or done
-    from radar_calib_ros.errors import ConfigError
+    from radar_calib_ros.sim import check_duration
     from radar_calib_ros.sim.scenario import get_scenario
     get_scenario(args.scenario)
-    if not 10.0 <= args.duration <= 3600.0:
-        raise ConfigError(f'--duration {args.duration:g} s is outside [10, 3600] s')
+    check_duration(args.duration)
     print(f'1/4 simulating a {args.duration:.0f} s drive past a roadside radar '
           f'(scenario {args.scenario!r}, seed {args.seed}) ...', file=out)
     start = time.perf_counter()

@@ -50,7 +50,7 @@ from radar_calib_ros.errors import CalibrationError, DecodeError, InsufficientDa
 from radar_calib_ros.io import messages as msgs
 from radar_calib_ros.io.bag import write_bag
 from radar_calib_ros.recording import RecordingBuilder
-from radar_calib_ros.result import load_result, parse_stamp, write_result_yaml
+from radar_calib_ros.result import STAMP_FORMAT, load_result, parse_stamp, write_result_yaml
 from radar_calib_ros.types import FixSample, OdomSample, QualityReport, RadarFrame
 
 if TYPE_CHECKING:
@@ -655,7 +655,7 @@ class LiveCalibrator:
         if frames + fixes + odoms == 0:
             return TriggerOutcome(False, 'the buffer is empty: nothing to save')
         if path is None:
-            stamp = _dt.datetime.now(_dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
+            stamp = _dt.datetime.now(_dt.timezone.utc).strftime(STAMP_FORMAT)
             path = _unused_path(Path(config.output.recording_dir) / f'recording_{stamp}')
         path = Path(path)
         start = time.perf_counter()

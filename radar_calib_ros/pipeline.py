@@ -1124,10 +1124,11 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         stage_6 = err.stage == 'hypotheses' and type(err) is InsufficientDataError
         # said instead of what else was tried, should that fail too
         short = _short_drive_note(recording, config) if stage_6 else None
+        short_drive = (None if short is None else
+                       InsufficientDataError(err.stage, f'{err.reason.rstrip(".")}. {short}'))
         sparse = _sparse_radar_config(recording, tracked, config) if stage_6 else None
-        if sparse is None and short is not None:
-            raise InsufficientDataError(err.stage,
-                                        f'{err.reason.rstrip(".")}. {short}') from err
+        if sparse is None and short_drive is not None:
+            raise short_drive from err
         if sparse is None:
             mirrored = _mirrored_axis(recording, config) if stage_6 else None
             if mirrored is not None:
@@ -1149,9 +1150,8 @@ def _run_calibration(recording: Recording, config: CalibConfig,
             ground, clutter_note, tracks, hyps, selection = _stages_4_to_6(
                 recording, tracked, sparse_config, stage)
         except InsufficientDataError as second:
-            if short is not None:
-                raise InsufficientDataError(err.stage,
-                                            f'{err.reason.rstrip(".")}. {short}') from err
+            if short_drive is not None:
+                raise short_drive from err
             raise InsufficientDataError(
                 err.stage, f'{err.reason.rstrip(".")}. The radar reports few targets per road '
                 f'user (a median of {per_frame:g} a frame in its tracks); the settings for '

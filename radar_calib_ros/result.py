@@ -164,14 +164,20 @@ def _umask() -> int:
     return mask
 
 
+def is_stream(path: str | Path) -> bool:
+    """Whether a path names a device or a pipe (``/dev/stdout``), not a file to replace."""
+    path = Path(path)
+    return path.exists() and not path.is_file() and not path.is_dir()
+
+
 def write_atomic(path: str | Path, text: str) -> None:
     """Write a file via a temporary file in the same directory, fsync, rename; with the
     permissions a plainly created file gets (mkstemp's 0600 would keep a node running as
     another user from reading the result)."""
     path = Path(path)
-    if path.exists() and not path.is_file() and not path.is_dir():
-        # a device or a pipe (--json /dev/stdout): written through, as a shell would; a
-        # rename would have replaced the device node itself (a probe's /dev/full, as root)
+    if is_stream(path):
+        # written through, as a shell would; a rename would have replaced the device node
+        # itself (a probe's /dev/full, as root)
         with open(path, 'w', encoding='utf-8') as fh:
             fh.write(text)
         return

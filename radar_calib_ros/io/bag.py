@@ -196,7 +196,18 @@ class _Topic:
     msgcount: int
 
 
-class _PlainReader:
+class _JazzyDecoding:
+    """Decoding with our Jazzy typestore, for the readers that do not parse a bag's own
+    message definitions (the topics we decode are standard ROS 2 types)."""
+
+    def __init__(self) -> None:
+        self._typestore = msgs.get_typestore()
+
+    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
+        return self._typestore.deserialize_cdr(rawdata, msgtype)
+
+
+class _PlainReader(_JazzyDecoding):
     """A bag read without its embedded message definitions, decoded with our Jazzy
     typestore: rosbags' storage reader for mcap, sqlite3 itself (read-only) for sqlite3
     storage, so that a write-ahead log left by an interrupted recording is read too.
@@ -210,7 +221,7 @@ class _PlainReader:
     """
 
     def __init__(self, path: Path) -> None:
-        self._typestore = msgs.get_typestore()
+        super().__init__()
         self._sqlite: list[tuple[sqlite3.Connection, dict[int, _Topic]]] = []
         self._rosbag: Any = None
         files = _storage_files(path)
@@ -252,9 +263,6 @@ class _PlainReader:
             for topic_id, stamp, data in db.execute(query, ids):
                 yield topics[topic_id], int(stamp), data
 
-    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
-        return self._typestore.deserialize_cdr(rawdata, msgtype)
-
     def close(self) -> None:
         for db, _ in self._sqlite:
             db.close()
@@ -265,7 +273,7 @@ class _PlainReader:
 _MCAP_MAGIC = b'\x89MCAP0\r\n'
 
 
-class _CutMcap:
+class _CutMcap(_JazzyDecoding):
     """An MCAP file cut short (no footer, no index: the recorder lost power or was
     killed): its whole records before the cut, scanned in file order (the order rosbag2
     wrote them in), through rosbags' own MCAP record scanner.
@@ -277,7 +285,7 @@ class _CutMcap:
 
     def __init__(self, file: Path) -> None:
         from rosbags.rosbag2.storage_mcap import McapReader
-        self._typestore = msgs.get_typestore()
+        super().__init__()
         self._reader = McapReader(file)
         bio = self._reader.bio = file.open('rb')
         try:
@@ -300,9 +308,6 @@ class _CutMcap:
 
     def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, Any]]:
         yield from self._reader.messages_scan(list(connections) or self.connections)
-
-    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
-        return self._typestore.deserialize_cdr(rawdata, msgtype)
 
     def close(self) -> None:
         self._reader.close()
@@ -335,6 +340,9 @@ def _cut_mcap(path: Path) -> _CutMcap | None:
     if not any(c.msgcount for c in cut.connections):
         cut.close()    # cut inside its first chunk: nothing to read, the repair to name
         return None
+    _LOG.warning('%r was cut short (the recording interrupted): read up to the cut, the %d '
+                 'messages of its whole chunks (%.0f %% of the file)', str(path),
+                 sum(c.msgcount for c in cut.connections), 100 * cut.kept_fraction)
     return cut
 
 
@@ -352,7 +360,7 @@ def _split_order(file: Path) -> tuple[str, int, str]:
     return (stem, int(index), file.suffix) if index.isdigit() else (file.stem, -1, file.suffix)
 
 
-class _SplitReader:
+class _SplitReader(_JazzyDecoding):
     """A split recording without its metadata.yaml (rosbag2 writes it when the recording
     ends: a recorder that lost power leaves ``name_0.mcap``, ``name_1.mcap``, ... and the
     last one cut short). Each storage file is read on its own (``_PlainReader``; one cut
@@ -362,7 +370,7 @@ class _SplitReader:
     user's."""
 
     def __init__(self, path: Path) -> None:
-        self._typestore = msgs.get_typestore()
+        super().__init__()
         self._parts: list[Any] = []
         files = _storage_files(path)
         _LOG.warning('%r has no metadata.yaml (a split recording interrupted before it was '
@@ -393,11 +401,6 @@ class _SplitReader:
         if cut is None:
             _LOG.warning('%s was cut short before its first whole message: left out',
                          file.name)
-        else:
-            _LOG.warning('%s was cut short (the recording interrupted): read up to the cut, '
-                         'the %d messages of its whole chunks (%.0f %% of the file)',
-                         file.name, sum(c.msgcount for c in cut.connections),
-                         100 * cut.kept_fraction)
         return cut
 
     def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, Any]]:
@@ -406,9 +409,6 @@ class _SplitReader:
             own = [c for c in wanted if self._owner.get(id(c)) is part]
             if own:
                 yield from part.messages(own)
-
-    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
-        return self._typestore.deserialize_cdr(rawdata, msgtype)
 
     def close(self) -> None:
         for part in self._parts:
@@ -469,9 +469,6 @@ def _open_reader(path: Path) -> Iterator[_BagReader]:
                            'recover` of the mcap CLI rewrites what it holds into a readable '
                            'file)')
             raise BagReadError(f'reading bag {str(path)!r}: {reason}') from err
-        _LOG.warning('%r was cut short (the recording interrupted): read up to the cut, '
-                     'the %d messages of its whole chunks (%.0f %% of the file)', str(path),
-                     sum(c.msgcount for c in cut.connections), 100 * cut.kept_fraction)
         reader = cut
     try:
         yield reader

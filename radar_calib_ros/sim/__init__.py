@@ -49,7 +49,7 @@ from radar_calib_ros.sim.writer import (
     targets_file, write_ground_truth, write_params, write_recording, write_targets)
 from radar_calib_ros.types import Extrinsics
 
-__all__ = ['SCENARIOS', 'SCATTER_MODELS', 'DEFAULT_SCATTER_MODEL', 'CLASS_NAMES',
+__all__ = ['SCENARIOS', 'check_duration', 'SCATTER_MODELS', 'DEFAULT_SCATTER_MODEL', 'CLASS_NAMES',
            'KIND_NAMES', 'SimulationPaths', 'SimulationSummary', 'simulate']
 
 #: Recording start of every simulation (UTC); stamps are deterministic per seed.
@@ -89,6 +89,12 @@ class SimulationSummary:
     #: a recording of several radars: the ground truth of each, by frame id (the first is
     #: ``truth`` / ``extrinsics`` above); empty for one radar
     radars: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+def check_duration(duration_s: float) -> None:
+    """ConfigError unless a simulated drive's duration [s] lies in [10, 3600]."""
+    if not (10.0 <= float(duration_s) <= 3600.0):
+        raise ConfigError(f'duration {duration_s:g} s is outside [10, 3600] s')
 
 
 def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
@@ -150,8 +156,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, duration_s: float = 600.0,
     model_name = check_scatter_model(scatter_model)
     if storage not in _STORAGES:
         raise ConfigError(f'unknown bag storage {storage!r}; use mcap or sqlite3')
-    if not (10.0 <= float(duration_s) <= 3600.0):
-        raise ConfigError(f'duration {duration_s} s is outside [10, 3600] s')
+    check_duration(duration_s)
     if not isinstance(seed, int) or seed < 0:
         raise ConfigError(f'seed must be a non-negative integer, got {seed!r}')
     if not (max_unambiguous_velocity_mps == 0.0 or 2.0 <= max_unambiguous_velocity_mps <= 200.0):
