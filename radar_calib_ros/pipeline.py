@@ -476,7 +476,7 @@ _LATE_AGREE_SHARE = 0.2
 
 
 def _odometry_late_note(recording: Recording, fitted_offset_s: float) -> str | None:
-    """The note for fixes found to lag the Odometry by L (``recording._fix_lag``) when the
+    """The note for fixes found to lag the Odometry by L (``vehicle_track._fix_lag``) when the
     fitted clock offset is -L, not 0: the radar is on the fixes' clock, so it is rather the
     Odometry that runs late (a ninth probe's Odometry stamped 0.3-1 s late was reported
     as late fixes and a radar clock offset beyond its bound), else None."""
@@ -517,7 +517,7 @@ def _fix_grade_failure_note(recording: Recording) -> list[str]:
 
 def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
     """Notes on the radar's clock: its stamps far off the poses' or jumping against the
-    recorder's clock (counters of ``recording._receipt_checks``, bags only), and radar
+    recorder's clock (counters of ``clocks._receipt_checks``, bags only), and radar
     frames outside the pose stream (``_outside_poses_notes``)."""
     notes = []
     counters = recording.counters

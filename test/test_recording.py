@@ -722,7 +722,7 @@ def test_receipt_times_show_a_radar_clock_offset_and_a_jump() -> None:
     """The recorder's clock is one for both streams: radar stamps 18 s ahead of the poses'
     (GPS against UTC time) give an offset; a radar clock that jumps by 5 s halfway gives a
     jump (which a pause in the data, stamps and receipt alike, does not)."""
-    from radar_calib_ros.recording import _receipt_checks
+    from radar_calib_ros.clocks import _receipt_checks
 
     rng = np.random.default_rng(1)
     received = np.arange(600, dtype=np.int64) * 66_666_667
@@ -989,7 +989,7 @@ def test_a_small_step_of_the_radar_clock_is_named_and_jitter_is_not() -> None:
     """An NTP correction of 0.2 s halfway (an independent probe lost 2 of 6 passes to it
     without a word) is found from the receipt lags; V2X latency jitter of a second is not a
     step, nor is a step of the recorder's own clock (the poses' receipt lag steps alike)."""
-    from radar_calib_ros.recording import _receipt_checks
+    from radar_calib_ros.clocks import _receipt_checks
 
     rng = np.random.default_rng(2)
     n = 4000
@@ -1676,7 +1676,7 @@ def test_windows_of_samples_at_one_time_fit_without_failing() -> None:
     """Fixes moved onto a few instants (a stream whose stamps fell back at once) leave
     windows of fewer than three times: the quadratics stay solvable and finite, and the
     regular windows are fitted exactly."""
-    from radar_calib_ros.recording import _window_quadratics
+    from radar_calib_ros.vehicle_track import _window_quadratics
     t = np.concatenate([np.zeros(5), np.full(5, 1.0), np.arange(2.0, 12.0)])
     values = np.column_stack([3.0 + 2.0 * t + 0.5 * t ** 2, np.zeros(t.size)])
     k = 5
