@@ -2,10 +2,10 @@
 
 A recorder stamps every message it receives with one clock, so the lag from each
 message's header stamp to its receipt compares the radar's clock with the poses'. These
-functions read it: the radar's stamps' offset from the poses' (``_receipt_checks``), a
+functions read it: the radar's stamps' offset from the poses' (``receipt_checks``), a
 lasting step of the radar's clock alone (a reboot, a lost or regained sync:
-``_radar_clock_step``, under a second ``_small_clock_step``) and a restart of every
-stream's clock at once (a simulator reset: ``_common_restart``). They work on plain
+``radar_clock_step``, under a second ``_small_clock_step``) and a restart of every
+stream's clock at once (a simulator reset: ``common_restart``). They work on plain
 arrays of lags and receive times; ``RecordingBuilder`` applies what they find to the
 samples it holds.
 
@@ -77,7 +77,7 @@ def _step_sides(order: I64, ordered: F64, k: int, before: float, after: float,
     return later
 
 
-def _receipts_from(stamp_ns: int, lags: list[int], received: list[int]) -> list[int]:
+def receipts_from(stamp_ns: int, lags: list[int], received: list[int]) -> list[int]:
     """Indices of the receipts (lag, received) of the messages stamped at or after
     ``stamp_ns``."""
     return [i for i, (lag, rec) in enumerate(zip(lags, received)) if rec - lag >= stamp_ns]
@@ -90,8 +90,8 @@ _RECEIPT_OFFSET_S = 1.0
 _RECEIPT_WINDOW = 15
 
 
-def _radar_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
-                      pose_received: I64 | None = None) -> tuple[np.ndarray, float, float] | None:
+def radar_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
+                     pose_received: I64 | None = None) -> tuple[np.ndarray, float, float] | None:
     """(messages after the step, median lag before, after [ns]) of the largest lasting step,
     ``_RECEIPT_OFFSET_S`` or more, of the radar stamps' receipt lag that the poses' lag does
     not share, or None. Messages near the step (in flight when it came) go to the side
@@ -105,8 +105,8 @@ def _radar_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
     return later, before, after
 
 
-def _jump_counters(later: np.ndarray, before_ns: float, after_ns: float,
-                   radar_received: I64) -> dict[str, int]:
+def jump_counters(later: np.ndarray, before_ns: float, after_ns: float,
+                  radar_received: I64) -> dict[str, int]:
     """'radar_stamp_jump_ms' (a lag that drops is a stamp that jumps forward) and
     'radar_stamp_jump_at_ms' (after the first radar message) of a step of the radar
     stamps' receipt lag from ``before_ns`` to ``after_ns``, ``later`` the messages after."""
@@ -115,7 +115,7 @@ def _jump_counters(later: np.ndarray, before_ns: float, after_ns: float,
                 (radar_received[later].min() - radar_received.min()) // 10**6)}
 
 
-def _rejoin_shift(before_ns: float, after_ns: float, pose_lag: I64) -> tuple[bool, int]:
+def rejoin_shift(before_ns: float, after_ns: float, pose_lag: I64) -> tuple[bool, int]:
     """(whether the side after it moves, by how much [ns]) to undo a step of the radar
     stamps' receipt lag from ``before_ns`` to ``after_ns``: the side whose lag lies farther
     from the poses' moves onto the other's clock (a radar on GPS time that finds its sync
@@ -139,8 +139,8 @@ def _pose_lag_stepped(pose_lag: I64, pose_received: I64 | None, at_ns: int,
     return abs(pose_step - step_ns) < 0.5 * abs(step_ns)
 
 
-def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
-                    pose_received: I64 | None = None) -> dict[str, int]:
+def receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
+                   pose_received: I64 | None = None) -> dict[str, int]:
     """Counters from the receipt lags (received - header stamp, ns, in received order): the
     radar stamps' offset from the poses' ('radar_stamp_offset_ms': radar minus pose; the
     notes judge it against ``sync.time_offset``), and the largest lasting step of the lag
@@ -166,9 +166,9 @@ def _receipt_checks(radar_lag: I64, radar_received: I64, pose_lag: I64,
             return out
     offset_ns = float(np.median(pose_lag) - np.median(radar_lag))
     out['radar_stamp_offset_ms'] = int(round(offset_ns / 1e6))
-    step = _radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)
+    step = radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)
     if step is not None:
-        out.update(_jump_counters(*step, radar_received))
+        out.update(jump_counters(*step, radar_received))
         return out
     step_at = _small_clock_step(radar_lag, radar_received, pose_lag, pose_received)
     if step_at is not None:
@@ -221,7 +221,7 @@ def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
 
 @dataclass(frozen=True)
 class Restart:
-    """A restart of every stream's clock at once (``_common_restart``).
+    """A restart of every stream's clock at once (``common_restart``).
 
     later : per stream (radar, fixes, Odometry) the messages after it, (0,) for a stream
         without messages; back_ns : how far each stream's stamps fell [ns]; at_ns : when
@@ -243,7 +243,7 @@ class Restart:
         return int(np.median(self.back_ns)) + int(_RESTART_GAP_S * 1e9)
 
 
-def _common_restart(streams: list[tuple[I64, I64]]) -> Restart | None:
+def common_restart(streams: list[tuple[I64, I64]]) -> Restart | None:
     """The restart of every stream (``(received, lag)`` of the radar, the fixes and the
     Odometry) at once, or None: each stream with messages has a lasting fall of its stamps
     (``_restart_step``), at least two have messages, and their falls agree in size and
@@ -262,9 +262,9 @@ def _common_restart(streams: list[tuple[I64, I64]]) -> Restart | None:
     return Restart(later, back_ns, at_ns)
 
 
-def _small_step_rejoin(radar_lag: I64, radar_received: I64, pose_lag: I64,
-                       pose_received: I64 | None, order: I64, message_frame: I64,
-                       n_frames: int) -> I64 | None:
+def small_step_rejoin(radar_lag: I64, radar_received: I64, pose_lag: I64,
+                      pose_received: I64 | None, order: I64, message_frame: I64,
+                      n_frames: int) -> I64 | None:
     """(n_frames,) what to add to each frame's stamp to undo a step of the radar's clock
     under a second (``_small_clock_step``), or None without one; ``order`` the radar
     messages (in received order) by stamp, ``message_frame`` the frame of each of those."""
@@ -274,7 +274,7 @@ def _small_step_rejoin(radar_lag: I64, radar_received: I64, pose_lag: I64,
     _, _, later, before, after = small
     frame_later = np.zeros(n_frames, bool)
     np.logical_or.at(frame_later, message_frame, later[order])
-    move_later, shift = _rejoin_shift(before, after, pose_lag)
+    move_later, shift = rejoin_shift(before, after, pose_lag)
     moved = frame_later if move_later else ~frame_later
     rejoin_ns: I64 = shift * moved.astype(np.int64)
     return rejoin_ns

@@ -433,7 +433,7 @@ class LiveCalibrator:
 
     def _add(self, stream: str, stamp_ns: int, sample: Sample) -> None:
         # The node's clock is one clock for every stream, as a recorder's is: it shows radar
-        # stamps seconds off the poses' or jumping (``clocks._receipt_checks``); a
+        # stamps seconds off the poses' or jumping (``clocks.receipt_checks``); a
         # sample held to confirm a jump counts as received when released, a moment late.
         added = True
         if isinstance(sample, RadarFrame):

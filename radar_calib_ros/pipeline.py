@@ -517,7 +517,7 @@ def _fix_grade_failure_note(recording: Recording) -> list[str]:
 
 def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
     """Notes on the radar's clock: its stamps far off the poses' or jumping against the
-    recorder's clock (counters of ``clocks._receipt_checks``, bags only), and radar
+    recorder's clock (counters of ``clocks.receipt_checks``, bags only), and radar
     frames outside the pose stream (``_outside_poses_notes``)."""
     notes = []
     counters = recording.counters

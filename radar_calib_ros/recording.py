@@ -24,15 +24,16 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from radar_calib_ros.clocks import (
-    _common_restart, _jump_counters, _radar_clock_step, _receipt_checks, _receipts_from,
-    _rejoin_shift, _small_step_rejoin)
+    common_restart, jump_counters, radar_clock_step, receipt_checks, receipts_from,
+    rejoin_shift, small_step_rejoin)
 from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core._angles import interp_angle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.types import (
     F64, I64, FixSample, OdomSample, PoseSamples, RadarFrame, RadarView, Targets, VehicleTrack)
 from radar_calib_ros.vehicle_track import (
-    RTK_DECLARED_SIGMA_M, _interp_angle, build_vehicle_track, declared_fix_sigma)
+    RTK_DECLARED_SIGMA_M, build_vehicle_track, declared_fix_sigma)
 
 __all__ = ['NOMINAL_FIX_SIGMA_M', 'RTK_DECLARED_SIGMA_M', 'Recording', 'RecordingBuilder',
            'interpolate_poses']
@@ -230,7 +231,7 @@ class RecordingBuilder:
         self._odoms: list[tuple[float, ...]] = []
         self.counters: Counter[str] = Counter()
         # received - header stamp [ns] of each radar message and each pose message, in the
-        # order received (a recorder's clock is one clock for both; see _receipt_checks)
+        # order received (a recorder's clock is one clock for both; see receipt_checks)
         self._radar_lag: list[int] = []
         self._radar_received: list[int] = []
         self._pose_lag: list[int] = []
@@ -334,7 +335,7 @@ class RecordingBuilder:
                 self._frame_positions = [self._frame_positions[i] for i in keep_f]
                 self._frame_velocities = [self._frame_velocities[i] for i in keep_f]
             # receipts go with their samples (received - lag is the header stamp)
-            keep = _receipts_from(stamp_ns, self._radar_lag, self._radar_received)
+            keep = receipts_from(stamp_ns, self._radar_lag, self._radar_received)
             self._radar_lag = [self._radar_lag[i] for i in keep]
             self._radar_received = [self._radar_received[i] for i in keep]
         if role in (None, 'navsat'):
@@ -502,15 +503,15 @@ class RecordingBuilder:
         # Odometry on a clock of its own, a node without use_sim_time, had the tool advise
         # a sync.time_offset of 1.76e9 s for a radar on the fixes' clock).
         pose_lag, pose_received = self._judging_pose_receipts()
-        counters.update(_receipt_checks(np.asarray(self._radar_lag, np.int64),
-                                        np.asarray(self._radar_received, np.int64),
-                                        pose_lag, pose_received))
+        counters.update(receipt_checks(np.asarray(self._radar_lag, np.int64),
+                                       np.asarray(self._radar_received, np.int64),
+                                       pose_lag, pose_received))
         rejoin_ns = None
         if ('radar_stamp_jump_ms' in counters and len(self._radar_lag) == len(self._frame_stamps)):
-            rejoin_ns = _small_step_rejoin(np.asarray(self._radar_lag, np.int64),
-                                           np.asarray(self._radar_received, np.int64),
-                                           pose_lag, pose_received, order,
-                                           message_frame.ravel(), frame_stamps.size)
+            rejoin_ns = small_step_rejoin(np.asarray(self._radar_lag, np.int64),
+                                          np.asarray(self._radar_received, np.int64),
+                                          pose_lag, pose_received, order,
+                                          message_frame.ravel(), frame_stamps.size)
         merged = int(order.size - frame_stamps.size)
         if merged:
             counters['radar_messages_merged'] = merged
@@ -552,16 +553,16 @@ class RecordingBuilder:
         radar_lag = np.asarray(self._radar_lag, np.int64)
         radar_received = np.asarray(self._radar_received, np.int64)
         pose_lag, pose_received = self._judging_pose_receipts()
-        step = _radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)
+        step = radar_clock_step(radar_lag, radar_received, pose_lag, pose_received)
         if step is None:
             return None
         later, before_ns, after_ns = step
-        move_later, shift = _rejoin_shift(before_ns, after_ns, pose_lag)
+        move_later, shift = rejoin_shift(before_ns, after_ns, pose_lag)
         moved = later if move_later else ~later
         copy = self.snapshot()
         copy._frame_stamps = list(np.asarray(self._frame_stamps, np.int64) + shift * moved)
         copy._radar_lag = list(radar_lag - shift * moved)
-        copy.counters.update(_jump_counters(later, before_ns, after_ns, radar_received))
+        copy.counters.update(jump_counters(later, before_ns, after_ns, radar_received))
         copy.counters['radar_stamps_rejoined'] = int(moved.sum())
         copy.counters['radar_stamps_rejoined_later'] = int(move_later)
         _LOG.warning('the radar\'s header stamps jump by %+.1f s against the recorder\'s clock: '
@@ -595,7 +596,7 @@ class RecordingBuilder:
             return None  # samples appended without their receipts (a test's, a tool's)
         streams = [(radar_received, radar_lag), (pose_received[is_fix], pose_lag[is_fix]),
                    (pose_received[~is_fix], pose_lag[~is_fix])]
-        restart = _common_restart(streams)
+        restart = common_restart(streams)
         if restart is None:
             return None
         shift, gap, later = restart.shift_ns, restart.gap_ns, restart.later
@@ -791,7 +792,7 @@ def interpolate_poses(vehicle: VehicleTrack, stamps_ns: I64, max_gap_s: float) -
                                  for i in range(3)])
     velocities = np.column_stack([np.interp(tq, tv, vehicle.velocities_mps[:, i])
                                   for i in range(3)])
-    yaw = _interp_angle(tq, tv, vehicle.yaw_rad)
+    yaw = interp_angle(tq, tv, vehicle.yaw_rad)
     yaw_rate = np.interp(tq, tv, vehicle.yaw_rate_rps)
     upper = np.clip(np.searchsorted(tv, tq, side='left'), 1, tv.size - 1)
     gap = tv[upper] - tv[upper - 1]

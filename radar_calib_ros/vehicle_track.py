@@ -24,7 +24,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
-from radar_calib_ros.core._angles import circular_mean, wrap_angle
+from radar_calib_ros.core._angles import circular_mean, interp_angle, wrap_angle
 from radar_calib_ros.errors import ConfigError, InsufficientDataError
 from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.types import F64, I64, OdomSample, VehicleTrack
@@ -171,7 +171,7 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
                              'fixes are taken at their stamp minus that', 1000.0 * lag_s)
                 stamps = stamps - int(round(lag_s * 1e9))
                 to = to + lag_s
-        yaw_true_at = _interp_angle(t, to, yaw_true)
+        yaw_true_at = interp_angle(t, to, yaw_true)
         # The checks differentiate over +-1 s, not the +-0.2 s the velocities use: a
         # standalone fix (metres of noise, 10 Hz) gives ~7 m/s of noise over 0.4 s and
         # would condemn a good twist, ~1.4 m/s over 2 s; a zero or mis-framed twist, or a
@@ -646,7 +646,7 @@ def _odometry_between_fixes(t: F64, positions: F64, yaw: F64, velocities: F64, y
     bridged[1:-1] = interval <= _BRIDGED_INTERVAL_S
     alone = ~(bridged[:-1] | bridged[1:])
     fix_rows = np.flatnonzero(is_fix)
-    out_yaw[is_fix] = np.where(alone, yaw, _interp_angle(t, to, heading))
+    out_yaw[is_fix] = np.where(alone, yaw, interp_angle(t, to, heading))
     out_rate[is_fix] = np.where(alone, yaw_rate, np.interp(t, to, rate))
     out_positions[fix_rows] = positions
     # at a fix the misclosure's slope of a bridged interval beside it (an outage's one
@@ -1003,12 +1003,6 @@ def _grade_cosine(t: F64, positions: F64, speed: F64,
     sine = np.clip(climb / np.maximum(speed, 1e-9), -_GRADE_MAX, _GRADE_MAX)
     sine[speed < _TWIST_CHECK_SPEED_MPS] = 0.0
     return np.sqrt(1.0 - sine ** 2)
-
-
-def _interp_angle(tq: F64, t: F64, angle: F64) -> F64:
-    """Interpolate an angle series on the circle; result wrapped to [-pi, pi)."""
-    unwrapped = np.unwrap(angle)
-    return (np.interp(tq, t, unwrapped) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 #: The Odometry twist is trusted where it agrees with the motion of the positions to within
@@ -1408,7 +1402,7 @@ def _course_over_ground(t: F64, velocities: F64, min_speed: float,
     course = np.arctan2(smoothed[:, 1], smoothed[:, 0])
     course = course + np.pi * _reversing(t, course, good, speed, positions, counters)
     if good.sum() >= 2:
-        yaw = _interp_angle(t, t[good], course[good])
+        yaw = interp_angle(t, t[good], course[good])
     elif good.any():
         yaw = np.full_like(t, course[good][0])
     else:

@@ -722,41 +722,41 @@ def test_receipt_times_show_a_radar_clock_offset_and_a_jump() -> None:
     """The recorder's clock is one for both streams: radar stamps 18 s ahead of the poses'
     (GPS against UTC time) give an offset; a radar clock that jumps by 5 s halfway gives a
     jump (which a pause in the data, stamps and receipt alike, does not)."""
-    from radar_calib_ros.clocks import _receipt_checks
+    from radar_calib_ros.clocks import receipt_checks
 
     rng = np.random.default_rng(1)
     received = np.arange(600, dtype=np.int64) * 66_666_667
     latency = rng.integers(5, 80, 600) * 1_000_000
     pose_lag = rng.integers(2, 8, 3000).astype(np.int64) * 1_000_000
-    ahead = _receipt_checks(latency - 18 * 10**9, received, pose_lag)
+    ahead = receipt_checks(latency - 18 * 10**9, received, pose_lag)
     assert ahead['radar_stamp_offset_ms'] == pytest.approx(18_000, abs=100)
     assert 'radar_stamp_jump_ms' not in ahead
     jumped = latency.copy()
     jumped[300:] -= 5 * 10**9          # stamps 5 s later from frame 300 on
-    out = _receipt_checks(jumped, received, pose_lag)
+    out = receipt_checks(jumped, received, pose_lag)
     assert out['radar_stamp_jump_ms'] == pytest.approx(5000, abs=100)
     assert out['radar_stamp_jump_at_ms'] == pytest.approx(300 * 66.67, abs=200)
     paused = received.copy()
     paused[300:] += 60 * 10**9         # nothing for a minute: stamps and receipt move together
-    calm = _receipt_checks(latency, paused, pose_lag)
+    calm = receipt_checks(latency, paused, pose_lag)
     assert 'radar_stamp_jump_ms' not in calm and abs(calm['radar_stamp_offset_ms']) < 100
     # a converter's bag: every message received at one time, which says nothing of the
     # clocks (the lags then only mirror the stamps: a jump of the whole recording's length)
     stamps = received - jumped
     flat = np.full(600, received[-1])
-    assert _receipt_checks(flat - stamps, flat, pose_lag) == {}
+    assert receipt_checks(flat - stamps, flat, pose_lag) == {}
     pose_flat = np.full(3000, received[-1])
-    assert _receipt_checks(jumped, received, pose_lag, pose_flat) == {}
+    assert receipt_checks(jumped, received, pose_lag, pose_flat) == {}
     # receipts at ten times the stamps' pace (a bag played at --rate 10 without
     # use_sim_time): not judged either; at the stamps' pace, judged
     t0 = 10**18
     pose_stamps = t0 + np.arange(3000, dtype=np.int64) * 20_000_000
     fast = t0 + (pose_stamps - t0) // 10
-    assert _receipt_checks(jumped, received, fast - pose_stamps, fast) == {}
+    assert receipt_checks(jumped, received, fast - pose_stamps, fast) == {}
     paced = pose_stamps + 5_000_000
     radar_received = t0 + received
-    assert 'radar_stamp_jump_ms' in _receipt_checks(jumped, radar_received,
-                                                    paced - pose_stamps, paced)
+    assert 'radar_stamp_jump_ms' in receipt_checks(jumped, radar_received,
+                                                   paced - pose_stamps, paced)
 
 
 def test_an_odometry_on_a_clock_of_its_own_is_left_out_and_the_radar_judged_by_the_fixes(
@@ -989,7 +989,7 @@ def test_a_small_step_of_the_radar_clock_is_named_and_jitter_is_not() -> None:
     """An NTP correction of 0.2 s halfway (an independent probe lost 2 of 6 passes to it
     without a word) is found from the receipt lags; V2X latency jitter of a second is not a
     step, nor is a step of the recorder's own clock (the poses' receipt lag steps alike)."""
-    from radar_calib_ros.clocks import _receipt_checks
+    from radar_calib_ros.clocks import receipt_checks
 
     rng = np.random.default_rng(2)
     n = 4000
@@ -997,24 +997,24 @@ def test_a_small_step_of_the_radar_clock_is_named_and_jitter_is_not() -> None:
     latency = rng.integers(5, 40, n).astype(np.int64) * 1_000_000
     pose_received = np.arange(3 * n, dtype=np.int64) * 22_222_222
     pose_lag = rng.integers(2, 8, 3 * n).astype(np.int64) * 1_000_000
-    assert 'radar_stamp_jump_ms' not in _receipt_checks(latency, received, pose_lag,
-                                                        pose_received)
+    assert 'radar_stamp_jump_ms' not in receipt_checks(latency, received, pose_lag,
+                                                       pose_received)
     for step_ms in (200, -150, -500):
         stepped = latency.copy()
         stepped[2500:] -= step_ms * 1_000_000     # stamps later by step_ms from 2500 on
-        out = _receipt_checks(stepped, received, pose_lag, pose_received)
+        out = receipt_checks(stepped, received, pose_lag, pose_received)
         assert out['radar_stamp_jump_ms'] == pytest.approx(step_ms, abs=10)
         assert out['radar_stamp_jump_at_ms'] == pytest.approx(2500 * 66.67, abs=5000)
     v2x = rng.integers(300, 1500, n).astype(np.int64) * 1_000_000
-    assert 'radar_stamp_jump_ms' not in _receipt_checks(v2x, received, pose_lag,
-                                                        pose_received)
+    assert 'radar_stamp_jump_ms' not in receipt_checks(v2x, received, pose_lag,
+                                                       pose_received)
     # the recorder's clock stepped: both receipt lags step together
     recorder = latency.copy()
     recorder[2500:] += 300_000_000
     pose_stepped = pose_lag.copy()
     pose_stepped[pose_received >= received[2500]] += 300_000_000
-    assert 'radar_stamp_jump_ms' not in _receipt_checks(recorder, received, pose_stepped,
-                                                        pose_received)
+    assert 'radar_stamp_jump_ms' not in receipt_checks(recorder, received, pose_stepped,
+                                                       pose_received)
 
 
 def test_targets_at_the_radar_origin_are_padding_and_dropped() -> None:

@@ -62,3 +62,11 @@ def circular_mean(angles_rad: ArrayLike, weights: ArrayLike | None = None,
         w = np.asarray(weights, dtype=np.float64)
         s, c = (w * np.sin(angles)).sum(axis=axis), (w * np.cos(angles)).sum(axis=axis)
     return wrap_angle(np.arctan2(s, c))
+
+
+def interp_angle(tq: F64, t: F64, angle: F64) -> F64:
+    """Interpolate an angle series (samples ``angle`` at increasing times ``t``) at ``tq`` on
+    the circle (unwrapped first, so a heading crossing +-pi does not swing through zero);
+    result wrapped to [-pi, pi)."""
+    unwrapped = np.unwrap(angle)
+    return (np.interp(tq, t, unwrapped) + np.pi) % (2.0 * np.pi) - np.pi
