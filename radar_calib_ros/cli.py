@@ -209,19 +209,26 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
         from radar_calib_ros.report import report_calibration
         start = time.perf_counter()
         files = report_calibration(args.report, result, config, calibration=calibration,
-                                   truth=_ground_truth(args.bag), source=str(args.bag))
+                                   truth=_ground_truth(args.bag, calibration['radar_frame']),
+                                   source=str(args.bag))
         print(f'report written to {files.html} ({len(files.figures)} figures, '
               f'{time.perf_counter() - start:.1f} s)', file=out)
     return 0
 
 
-def _ground_truth(bag: str | Path) -> dict[str, Any] | None:
+def _ground_truth(bag: str | Path, radar_frame: str | None = None) -> dict[str, Any] | None:
     """The simulator's ground truth next to a bag (the directory, or a metadata.yaml's
-    directory), or None; a broken one is skipped with a warning, never used silently."""
+    directory) of the radar in ``radar_frame``, or None; a broken one is skipped with a
+    warning, never used silently.
+
+    The frame matters in a recording of several radars: its ground_truth.json is the first
+    radar's, so an evaluation of the others compared with no truth (an operator probe's
+    N9), or would have with the wrong one."""
     from radar_calib_ros.groundtruth import load_ground_truth
     path = Path(bag)
     try:
-        return load_ground_truth(path if path.is_dir() else path.parent)
+        return load_ground_truth(path if path.is_dir() else path.parent,
+                                 None if radar_frame is None else radar_frame.lstrip('/'))
     except (OSError, ValueError) as err:
         print(f'warning: ignoring the unreadable ground truth next to {bag}: {err}',
               file=sys.stderr)
@@ -241,8 +248,9 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     _check_writable(args.json)
     calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
     read_s = time.perf_counter() - start
-    evaluation = evaluate_recording(recording, calibration, config,
-                                    truth=_ground_truth(args.bag))
+    evaluation = evaluate_recording(
+        recording, calibration, config,
+        truth=_ground_truth(args.bag, str(calibration.get('radar_frame', 'radar'))))
     print(format_evaluation(evaluation), file=out)
     if args.json:
         write_atomic(args.json, json.dumps(evaluation_dict(evaluation), indent=2) + '\n')
@@ -257,8 +265,10 @@ def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
     config = _load_config(args.params)
     _refuse_file_as_directory('--out', args.out)
     calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
-    files = report_recording(args.out, recording, calibration, config,
-                             truth=_ground_truth(args.bag), source=str(args.bag))
+    files = report_recording(
+        args.out, recording, calibration, config,
+        truth=_ground_truth(args.bag, str(calibration.get('radar_frame', 'radar'))),
+        source=str(args.bag))
     print(f'report written to {files.html} ({len(files.figures)} figures, '
           f'{time.perf_counter() - start:.1f} s)', file=out)
     return 0

@@ -169,3 +169,25 @@ def test_combined_parameters_hold_only_transforms() -> None:
     params = doc['/**']['ros__parameters']
     assert params['radar_frames'] == ['r1', 'r2']
     assert params['calibrations']['r1'] == {k: k for k in TRANSFORM_KEYS}
+
+
+def test_evaluate_compares_each_radar_with_its_own_truth(
+        three: tuple[SimulationSummary, Path], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The 2nd and 3rd radar's evaluation took ground_truth.json, which is the 1st radar's,
+    and so compared with no truth at all (an operator probe's N9). Each radar's own truth,
+    written as its calibration, must evaluate to no error against the truth."""
+    sim, params = three
+    from radar_calib_ros.result import RESULT_KEYS, write_result_yaml
+    for frame in FRAMES[1:]:
+        truth = load_ground_truth(sim.paths.bag, frame)
+        assert truth is not None
+        calibration = tmp_path / f'{frame}.yaml'
+        write_result_yaml(calibration, {k: truth[k] for k in RESULT_KEYS})
+        report = tmp_path / f'{frame}.json'
+        code = main(['evaluate', str(sim.paths.bag), '--params', str(params), '--calibration',
+                     str(calibration), '--json', str(report)])
+        assert code == 0, capsys.readouterr().err
+        errors = json.loads(report.read_text())['ground_truth_errors']
+        assert errors is not None, frame
+        assert errors['horizontal_m'] < 1e-3 and errors['rotation_deg'] < 1e-3
