@@ -437,7 +437,13 @@ def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
             for advice in outcome.calibration['quality'].get('advice') or []:
                 print(f'warning: {outcome.frame_id}: {advice}', file=sys.stderr)
 
-    outcomes = calibrate_all_radars(args.bag, args.params, jobs=args.jobs, done=done)
+    def begin(frames: dict[str, str]) -> None:
+        # the order the results are printed, written and combined in
+        print(f'radar topics ({len(frames)}): '
+              + ', '.join(f'{topic} ({frame})' for topic, frame in frames.items()), file=out)
+
+    outcomes = calibrate_all_radars(args.bag, args.params, jobs=args.jobs, done=done,
+                                    begin=begin)
     written = write_outcomes(args.output_dir, outcomes)
     if args.output and written and written[-1].name == COMBINED_FILE:
         # a user who names --output expects the file there: the combined transforms

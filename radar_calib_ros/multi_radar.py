@@ -75,10 +75,10 @@ def ambiguous_radar_topics(bag: str | Path, config: CalibConfig) -> list[str]:
 
 
 def radar_frames(bag: str | Path) -> dict[str, str]:
-    """Radar topic -> the frame its result is for: the messages' frame_id as TF has it
-    (a frame with '/' keeps it: a carla-ros-bridge's 'ego_vehicle/radar_front' renamed
-    would be a transform nobody looks up), or, where that is empty or shared by several
-    topics, the topic made a name.
+    """Radar topic -> the frame its result is for, sorted by topic: the messages' frame_id
+    as TF has it (a frame with '/' keeps it: a carla-ros-bridge's 'ego_vehicle/radar_front'
+    renamed would be a transform nobody looks up), or, where that is empty or shared by
+    several topics, the topic made a name.
 
     Raises
     ------
@@ -90,7 +90,8 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
     if not found:
         raise BagReadError(f'no radar topic (PointCloud2 or RadarScan) in {str(bag)!r}')
     names: dict[str, str] = {}
-    for topic, frame in found.items():
+    # sorted by topic: the order the results are printed, written and combined in
+    for topic, frame in sorted(found.items()):
         name = frame.strip().lstrip('/')
         if (not _safe(name) or _safe(name) in map(_safe, names.values())
                 or list(found.values()).count(frame) > 1):
@@ -130,13 +131,15 @@ def calibrate_topic(bag: str, params: str | None, topic: str, frame_id: str) -> 
         return RadarOutcome(topic, frame_id, None, str(err), exit_code(err))
     calibration = result.calibration(config)
     return RadarOutcome(topic, frame_id, calibration, None, 0,
-                        tuple(summary_lines(calibration, result.stage_times_s, read_s)),
+                        tuple(summary_lines(calibration, result.stage_times_s, read_s,
+                                            result.recording.sources)),
                         read_s, run_s)
 
 
 def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
                          jobs: int | None = None,
                          done: Callable[[RadarOutcome], None] | None = None,
+                         begin: Callable[[dict[str, str]], None] | None = None,
                          ) -> list[RadarOutcome]:
     """Calibrate every radar topic of a bag, in parallel processes.
 
@@ -150,7 +153,12 @@ def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
     jobs : int, optional
         Worker processes; default: one per radar, at most the number of CPUs.
     done : callable(RadarOutcome), optional
-        Called as each radar finishes (in completion order).
+        Called once per radar in topic order, as soon as it and every radar before it have
+        finished (an operator probe read the results in completion order, which changes
+        from run to run and did not match the files' order).
+    begin : callable(dict), optional
+        Called with the radar topics and their frames (:func:`radar_frames`, in topic
+        order) before any is calibrated.
 
     Returns
     -------
@@ -167,13 +175,25 @@ def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
     if params:
         CalibConfig.from_file(params)
     frames = radar_frames(bag)
+    if begin is not None:
+        begin(dict(frames))
     workers = max(1, min(len(frames), jobs or os.cpu_count() or 1))
     outcomes: dict[str, RadarOutcome] = {}
+    order = list(frames)
+    reported = 0
+
+    def report_ready() -> None:
+        # the finished radars at the head of the topic order, each once
+        nonlocal reported
+        while reported < len(order) and order[reported] in outcomes:
+            if done is not None:
+                done(outcomes[order[reported]])
+            reported += 1
+
     if workers == 1:
         for topic, frame in frames.items():
             outcomes[topic] = calibrate_topic(str(bag), params, topic, frame)
-            if done is not None:
-                done(outcomes[topic])
+            report_ready()
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             futures = [pool.submit(calibrate_topic, str(bag), params, topic, frame)
@@ -181,9 +201,8 @@ def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
             for future in as_completed(futures):
                 outcome = future.result()
                 outcomes[outcome.topic] = outcome
-                if done is not None:
-                    done(outcome)
-    return [outcomes[t] for t in frames]
+                report_ready()
+    return [outcomes[t] for t in order]
 
 
 def combined_parameters(calibrations: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:

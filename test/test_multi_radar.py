@@ -191,3 +191,42 @@ def test_evaluate_compares_each_radar_with_its_own_truth(
         errors = json.loads(report.read_text())['ground_truth_errors']
         assert errors is not None, frame
         assert errors['horizontal_m'] < 1e-3 and errors['rotation_deg'] < 1e-3
+
+
+def test_all_radars_prints_in_topic_order(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """The radars finish in any order; the results are printed in topic order, the order of
+    the files and of the combined parameters (an operator probe's N11: completion order,
+    and a topics line in another)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from radar_calib_ros import multi_radar
+    found = {'/b/points': 'radar_b', '/a/points': 'radar_a', '/c/points': 'radar_c'}
+    monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
+
+    def fake_calibrate(bag: str, params: str | None, topic: str,
+                       frame_id: str) -> multi_radar.RadarOutcome:
+        cal = {k: frame_id if k == 'radar_frame' else k for k in TRANSFORM_KEYS}
+        cal['quality'] = {}
+        return multi_radar.RadarOutcome(topic, frame_id, cal, None, 0, (f'summary {frame_id}',))
+
+    monkeypatch.setattr(multi_radar, 'calibrate_topic', fake_calibrate)
+    # threads instead of processes (so the fake is called), finishing last topic first
+    monkeypatch.setattr(multi_radar, 'ProcessPoolExecutor', ThreadPoolExecutor)
+    monkeypatch.setattr(multi_radar, 'as_completed', lambda futures: list(reversed(futures)))
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    code = main(['calibrate', str(bag), '--all-radars', '--output-dir', str(tmp_path / 'out'),
+                 '--jobs', '3'])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    lines = out.splitlines()
+    assert lines[0] == ('radar topics (3): /a/points (radar_a), /b/points (radar_b), '
+                        '/c/points (radar_c)')
+    blocks = [line for line in lines if line.endswith('s') and ': calibrated in' in line]
+    assert [b.split()[0] for b in blocks] == ['/a/points', '/b/points', '/c/points']
+    summaries = [line for line in lines if line.startswith('summary')]
+    assert summaries == ['summary radar_a', 'summary radar_b', 'summary radar_c']
+    combined = yaml.safe_load((tmp_path / 'out' / 'all_radars.yaml').read_text())
+    assert combined['/**']['ros__parameters']['radar_frames'] == ['radar_a', 'radar_b',
+                                                                  'radar_c']
