@@ -1037,16 +1037,20 @@ def _rejoined_clock(recording: Recording) -> Recording | None:
 
 
 def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibConfig,
-                   stage: _StageClock, *, leaps: bool = True
+                   stage: _StageClock, *, leaps: bool = True,
+                   tracks_out: list[tuple[GroundPlane, tuple[SmoothedTrack, ...]]] | None = None
                    ) -> tuple[GroundPlane, str | None, tuple[SmoothedTrack, ...],
                               list[Hypothesis], HypothesisSelection]:
     """Ground plane, tracking and hypotheses: the ground plane with its clutter note, the
     smoothed tracks, the hypotheses and the accepted selection (``leaps``: see
-    ``_hypotheses``)."""
+    ``_hypotheses``). ``tracks_out`` gets the ground plane and the tracks as soon as they
+    are made, for what a failure of stage 6 says (``_never_in_view_lead``)."""
     with stage('ground_plane'):
         ground, clutter_note = _ground_plane(recording, tracked, config)
     with stage('track'):
         tracks = tuple(track.track_clusters(recording, tracked, ground, config.track))
+    if tracks_out is not None:
+        tracks_out.append((ground, tracks))
     with stage('hypotheses'):
         hyps, selection = _hypotheses(tracks, recording, ground, config, leaps=leaps)
     if selection.rivals:
@@ -1061,6 +1065,67 @@ def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibC
     if selection.mount_turn is not None:
         raise _MountTurned(selection.mount_turn)
     return ground, clutter_note, tracks, hyps, selection
+
+
+def _stage_6_lead(err: InsufficientDataError,
+                  made: list[tuple[GroundPlane, tuple[SmoothedTrack, ...]]],
+                  recording: Recording, config: CalibConfig) -> str | None:
+    """``_never_in_view_lead`` for a failure of stage 6 on the tracks ``_stages_4_to_6``
+    made, else None."""
+    if err.stage != 'hypotheses' or type(err) is not InsufficientDataError or not made:
+        return None
+    ground, tracks = made[0]
+    return _never_in_view_lead(tracks, ground, recording, config)
+
+
+#: Clock offsets [s] on top of the given one at which the vehicle must have no company
+#: either before a failure says it was never in view, and the step between them: radar
+#: stamps 0.6 s off (beyond ``sync.max_time_offset``'s search) moved a seen vehicle's
+#: hypotheses metres, and it had company on 3 of 5 passes at best, as chance has.
+_NEVER_IN_VIEW_CLOCK_S = 1.0
+_NEVER_IN_VIEW_CLOCK_STEP_S = 0.25
+
+
+def _never_in_view_lead(tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
+                        recording: Recording, config: CalibConfig) -> str | None:
+    """The sentence that leads a failure where the vehicle was most likely never in the
+    radar's view, with what shows it (``hypotheses.view_company``), else None.
+
+    Why: there the failure read as one of agreement ('the cluster of 4 hypotheses over 3
+    passes has only 1 that agree') or of radial velocities ('the final refinement ran
+    6.1 m and 6.8 deg away'), as other road users' tracks fit stretches of the drive and
+    even agree by chance (an operator probe's M2). Said only where no track, taken for the
+    vehicle's, has tracks moving with it on most of the passes it then makes through the
+    view, at the given clock offset and at others up to ``_NEVER_IN_VIEW_CLOCK_S`` away:
+    where the vehicle is seen, its own tracks do at the right one.
+    """
+    steps = int(round(_NEVER_IN_VIEW_CLOCK_S / _NEVER_IN_VIEW_CLOCK_STEP_S))
+    first: tuple[int, list[hypotheses.ViewCompany]] | None = None
+    for k in [0, *(sign * i for i in range(1, steps + 1) for sign in (1, -1))]:
+        shifted = config if k == 0 else replace(config, sync=replace(
+            config.sync, time_offset=config.sync.time_offset + k * _NEVER_IN_VIEW_CLOCK_STEP_S))
+        hyps = hypotheses.generate_hypotheses(tracks, recording, ground, shifted)
+        if k == 0 and not hyps:
+            return None  # stage 6 already says 'never seen'
+        companies = hypotheses.view_company(hyps, tracks, recording, shifted)
+        if hypotheses.vehicle_kept_company(companies) is not False:
+            return None
+        if first is None:
+            first = (len(hyps), companies)
+    assert first is not None
+    n_hyps, companies = first
+    wide = [c for c in companies if c.in_view >= 2]
+    # the most passes any of them had company on
+    best = max(wide, key=lambda c: (c.met, c.met / c.in_view))
+    return (f'The calibration vehicle was most likely never in the radar\'s view: of the '
+            f'{n_hyps} tracks that fit a stretch of its drive, none, taken for the '
+            'vehicle\'s, has tracks moving with it (within '
+            f'{hypotheses.COMPANY_M:g} m and {hypotheses.COMPANY_MPS:g} m/s) on most of the '
+            'passes it then makes through the area the radar\'s moving targets cover (up to '
+            f'{best.reach_m:.0f} m from the radar): at best on {best.met} of {best.in_view}, '
+            f'nor with the radar stamps shifted by up to +-{_NEVER_IN_VIEW_CLOCK_S:g} s. '
+            'They are other road users\'; drive the vehicle through the radar\'s view. In '
+            'detail:')
 
 
 class _MountTurned(Exception):
@@ -1111,9 +1176,10 @@ def _run_calibration(recording: Recording, config: CalibConfig,
     if tracked.target_index.size == 0:
         raise InsufficientDataError('moving', 'no moving radar target in the recording')
     sparse_note: str | None = None
+    made: list[tuple[GroundPlane, tuple[SmoothedTrack, ...]]] = []
     try:
-        ground, clutter_note, tracks, hyps, selection = _stages_4_to_6(recording, tracked,
-                                                                       config, stage)
+        ground, clutter_note, tracks, hyps, selection = _stages_4_to_6(
+            recording, tracked, config, stage, tracks_out=made)
     except InsufficientDataError as err:
         # A radar with about one target per road user a frame (a traffic radar's cluster
         # list) breaks the paper's clusters of three over three frames into fragments that
@@ -1140,7 +1206,10 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                     'follow the vehicle: its point cloud is a mirror image (one axis reversed: '
                     f'{likely}), which no mount can produce. Fix the driver\'s axes (REP-103: '
                     'x forward, y left, z up) and calibrate again.') from err
-            raise
+            lead = _stage_6_lead(err, made, recording, config)
+            if lead is None:
+                raise
+            raise InsufficientDataError(err.stage, f'{lead} {err.reason}') from err
         sparse_config, per_frame = sparse
         settings = _settings_text(_sparse_radar_settings(config))
         _LOG.info('stage 6 found no agreement with a median of %g targets per road user a '
@@ -1152,8 +1221,10 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         except InsufficientDataError as second:
             if short_drive is not None:
                 raise short_drive from err
+            lead = _stage_6_lead(err, made, recording, config)
             raise InsufficientDataError(
-                err.stage, f'{err.reason.rstrip(".")}. The radar reports few targets per road '
+                err.stage, ('' if lead is None else f'{lead} ')
+                + f'{err.reason.rstrip(".")}. The radar reports few targets per road '
                 f'user (a median of {per_frame:g} a frame in its tracks); the settings for '
                 f'such a sparse radar ({settings}) were tried as well and failed too '
                 f'({second.stage}: {second.reason.rstrip(".")}).') from err
@@ -1164,6 +1235,26 @@ def _run_calibration(recording: Recording, config: CalibConfig,
                        f'the calibration clustered and tracked with {settings}. Put them in '
                        'the parameters file to make them the default for this radar.')
         _LOG.info('%s', sparse_note)
+    try:
+        return _stages_7_on(recording, config, stage, progress, tracked, ground, tracks,
+                            selection, clutter_note, sparse_note)
+    except InsufficientDataError as err:
+        # the paper's stages agreed, and what followed found no vehicle where they put it:
+        # a chance agreement of other road users where the vehicle was never in view (a
+        # bench drive far out of range: 'the final refinement ran 6.1 m away')
+        lead = _never_in_view_lead(tracks, ground, recording, config)
+        if lead is None:
+            raise
+        raise InsufficientDataError(err.stage, f'{lead} {err.reason}') from err
+
+
+def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
+                 progress: ProgressFn | None, tracked: TrackedTargets, ground: GroundPlane,
+                 tracks: tuple[SmoothedTrack, ...], selection: HypothesisSelection,
+                 clutter_note: str | None, sparse_note: str | None) -> CalibrationResult:
+    """The paper's polygon refinement, our final fit and the quality figures on stage 6's
+    selection."""
+    targets = recording.targets
     stage_extrinsics = {'hypotheses': selection.extrinsics}
     current = selection.extrinsics
     closest: Extrinsics | None = None
