@@ -56,6 +56,12 @@ _BOX_MISFIT_NOTE_INSIDE = 0.4
 #: A drive through the view that gave the final fit fewer targets than this was not used
 #: (the refinement's own floor for a pass).
 _USED_DRIVE_TARGETS = 20
+#: ... or, where the vehicle was seen in it, fewer fitted targets per second in view than
+#: this share of the median drive's: an operator probe's radar, re-aimed by 5 deg between
+#: two drives, had the earlier drive's 4,800 targets of the vehicle left out but for 35
+#: that brushed the box, and the drive counted as used (0.8 per second; the others 30-60).
+#: The drives of our bench's runs that the fit used give 5-49 per second, median about 20.
+_USED_DRIVE_RATE_SHARE = 0.05
 #: Below this share of its checked frames showing the vehicle, a drive counts as unseen.
 _SEEN_DRIVE_SHARE = 0.2
 
@@ -112,7 +118,7 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     fitted = (np.asarray(refinement.diagnostics['residuals']['target_index'], np.int64)
               if refinement is not None and 'residuals' in refinement.diagnostics else index)
     drives = drives_through_view(extrinsics, recording, fitted, config)
-    unused = [d for d in drives if d.n_targets < _USED_DRIVE_TARGETS]
+    unused = unused_drives(drives)
     # the passes the final fit used where it used more than stage 6 agreed on (a bus: 3
     # agreed, all 6 were fitted, and 'drive at least 5 times' misled), counted as drives
     # through the view (the fit's own groups split a drive at a gap), the same number in
@@ -129,7 +135,8 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
                       f'{rigid_misfit:.1f} m of those that move with it, so vehicle.* look '
                       'right. The final fit uses only targets that move with the vehicle.')
     if unused:
-        advice.append(_unused_drives_advice(unused, len(drives)))
+        advice.append(_unused_drives_advice(
+            unused, len(drives), [d for d in drives if d not in unused]))
     extra = {
         'sigma_source': source,
         'vehicle_targets': paper.n_targets,
@@ -512,7 +519,23 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     return drives
 
 
-def _unused_drives_advice(unused: list[Drive], n_drives: int) -> str:
+def unused_drives(drives: list[Drive]) -> list[Drive]:
+    """The drives the final fit (almost) did not use: fewer than ``_USED_DRIVE_TARGETS`` of
+    its targets, or, seen by the radar, a small share of the median drive's targets per
+    second among the other drives used (a few that brushed the box do not make a drive
+    used; judged against the others, so that it does not lower its own measure)."""
+    def rate(d: Drive) -> float:
+        return d.n_targets / max(d.end_s - d.start_s, 1.0)
+
+    def hardly_used(d: Drive) -> bool:
+        others = [rate(o) for o in drives if o is not d and o.n_targets >= _USED_DRIVE_TARGETS]
+        return (len(others) >= 2 and d.seen_share >= _SEEN_DRIVE_SHARE
+                and rate(d) < _USED_DRIVE_RATE_SHARE * float(np.median(others)))
+    return [d for d in drives if d.n_targets < _USED_DRIVE_TARGETS or hardly_used(d)]
+
+
+def _unused_drives_advice(unused: list[Drive], n_drives: int,
+                          used: list[Drive] | None = None) -> str:
     def when(drives: list[Drive]) -> str:
         return ', '.join(f'{d.start_s:.0f}-{d.end_s:.0f} s '
                          f'{uncertainty.compass_name(d.heading_rad)}bound' for d in drives)
@@ -538,10 +561,35 @@ def _unused_drives_advice(unused: list[Drive], n_drives: int) -> str:
                        'out (other road users queued or alongside that could not be told '
                        'apart, or the vehicle cut by the edge of the view, below or beside it) '
                        f'at {when(mixed)}')
+        moved = _mount_moved_between(mixed, used or [])
+        if moved:
+            # A re-aimed radar (or a slipped bracket) puts every drive on the far side of
+            # the change metres off the box: lost together, all before or all after the
+            # drives used, which traffic or the view's edge seldom do. A turn is named by
+            # the hypotheses where both sides hold enough passes; this is the case where
+            # one side does not.
+            reasons[-1] += (f'. They all come {moved[0]} the drives the result rests on: if '
+                            'the radar was re-aimed, or its mount moved, between '
+                            f'{moved[1]:.0f} and {moved[2]:.0f} s, they saw it at its other '
+                            'aim, and only the recording on the side of the drives used '
+                            'belongs to this result')
     return (f'{len(unused)} of the {n_drives} drives through the view gave the calibration '
-            f'no targets: {" ".join(reasons)}. The result rests on the other '
+            f'few or no targets: {" ".join(reasons)}. The result rests on the other '
             f'{n_drives - len(unused)}; if those views are needed, drive them again with the '
             'vehicle clear of other traffic and well inside the view.')
+
+
+def _mount_moved_between(lost: list[Drive], used: list[Drive]
+                         ) -> tuple[str, float, float] | None:
+    """('before' or 'after', from_s, to_s): the lost drives all precede (or all follow)
+    every drive used, and the gap between the two groups; None where they interleave."""
+    if not lost or not used:
+        return None
+    if max(d.end_s for d in lost) <= min(d.start_s for d in used):
+        return 'before', max(d.end_s for d in lost), min(d.start_s for d in used)
+    if min(d.start_s for d in lost) >= max(d.end_s for d in used):
+        return 'after', max(d.end_s for d in used), min(d.start_s for d in lost)
+    return None
 
 
 #: A drive with fewer radar scans than this share of the radar's usual rate is one the

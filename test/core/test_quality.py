@@ -297,3 +297,32 @@ def test_a_box_misfit_names_the_open_position_along_the_boresight_too() -> None:
     named = [a for a in open_along if 'outside its box' in a][0]
     assert 'which the drives leave open (4.4 m, 1 sigma)' in named
     assert 'vehicle.* may be right' in named
+
+
+def test_a_drive_the_fit_hardly_used_counts_as_unused_and_a_moved_mount_is_named() -> None:
+    """A drive whose targets the fit left out but for a few that brushed the box (a radar
+    re-aimed after it) is unused, and lost drives all before the used ones name a moved
+    mount; slower drives the fit did use, and lost drives among used ones, do not."""
+    Drive = quality.Drive
+    used = [Drive(120.0, 140.0, 0.0, 600, 0.8), Drive(200.0, 215.0, 3.0, 300, 0.7),
+            Drive(300.0, 340.0, 1.5, 250, 0.6)]  # 30, 20 and 6 per second
+    lost = Drive(0.0, 42.0, 1.5, 35, 0.7)  # 0.8 per second, the vehicle seen
+    unused = quality.unused_drives([lost, *used])
+    assert unused == [lost]
+    advice = quality._unused_drives_advice(unused, 4, used)
+    assert advice.startswith('1 of the 4 drives through the view gave the calibration few')
+    assert 'come before the drives the result rests on' in advice
+    assert 'between 42 and 120 s' in advice and 'rests on the other 3' in advice
+    # after the drives used, said so; among them, not a mount
+    late = Drive(400.0, 420.0, 0.0, 5, 0.7)
+    assert 'come after the drives the result rests on: if the radar was re-aimed, or its ' \
+        'mount moved, between 340 and 400 s' in quality._unused_drives_advice([late], 4, used)
+    between = Drive(150.0, 190.0, 0.0, 30, 0.7)
+    assert quality.unused_drives([between, *used]) == [between]
+    assert 're-aimed' not in quality._unused_drives_advice([between], 4, used)
+    # not seen at all: counted by the target floor only, and nothing said of a mount
+    unseen = Drive(0.0, 42.0, 1.5, 35, 0.05)
+    assert quality.unused_drives([unseen, *used]) == []
+    assert quality.unused_drives([Drive(0.0, 42.0, 1.5, 12, 0.05), *used])[0].n_targets == 12
+    # two drives only: no median to judge by, the floor alone
+    assert quality.unused_drives([lost, used[0]]) == []
