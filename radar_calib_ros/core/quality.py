@@ -458,7 +458,7 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     user drove. Counting the drives the way the user remembers them (moving through the
     view, stops in view included) and naming the unused ones says which views are missing.
     The view is the data's (as in ``vehicle_detection_ratio``): the radar's azimuth span of
-    all targets and 0.8 of their 99th-percentile range.
+    all targets, out to where it shows the vehicle (``_vehicle_in_view``).
     """
     vehicle = recording.vehicle
     if len(vehicle) < 2 or len(recording.targets) == 0:
@@ -469,7 +469,8 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     range_m = np.hypot(local[:, 0], local[:, 1])
     azimuth = np.arctan2(local[:, 1], local[:, 0])
     radar_view = recording.radar_view()
-    reach = 0.8 * radar_view.horizontal_range_m
+    view = _vehicle_in_view(extrinsics, recording, config, radar_view)
+    reach = view.reach_m if view is not None else 0.8 * radar_view.horizontal_range_m
     az_lo, az_hi = radar_view.azimuth_rad
     margin = np.radians(3.0)
     speed = np.hypot(vehicle.velocities_mps[:, 0], vehicle.velocities_mps[:, 1])
@@ -489,9 +490,8 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     n_fitted = (np.searchsorted(fitted, passes[:, 1], side='right')
                 - np.searchsorted(fitted, passes[:, 0], side='left'))
     seen_share = np.full(passes.shape[0], np.nan)
-    view = _vehicle_in_view(extrinsics, recording, config, radar_view)
     if view is not None:
-        checked = view[0]
+        checked = view.checked
         seen = _frames_seen(view, recording.frame_stamps_ns.size)
         frame_stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns, offset_s)
         in_pass = ((frame_stamps[None, :] >= passes[:, :1])
@@ -624,7 +624,8 @@ def vehicle_detection_ratio(extrinsics: Extrinsics, recording: Recording,
     traffic and head-on views included) and 0.00-0.02 for that wrong one.
 
     The radar's view is taken from the data (1st-99th percentile of the targets' azimuth,
-    99th of their range, shrunk by a margin), as the contract has no field-of-view parameter.
+    shrunk by a margin, out to where the radar shows the vehicle: ``_vehicle_in_view``), as
+    the contract has no field-of-view parameter.
 
     Returns
     -------
@@ -634,18 +635,17 @@ def vehicle_detection_ratio(extrinsics: Extrinsics, recording: Recording,
     view = _vehicle_in_view(extrinsics, recording, config)
     if view is None:
         return float('nan'), 0
-    checked = view[0]
+    checked = view.checked
     seen = _frames_seen(view, recording.frame_stamps_ns.size)
     return float(seen[checked].mean()), int(checked.sum())
 
 
-def _frames_seen(view: tuple[np.ndarray, I64, I64, F64, F64], n_frames: int
-                 ) -> np.ndarray:
+def _frames_seen(view: VehicleInView, n_frames: int) -> np.ndarray:
     """(n_frames,) True for the frames of ``_vehicle_in_view``'s targets that show the
     vehicle: a target near its box with its predicted radial velocity."""
-    _, _, frames, measured_vr, predicted_vr = view
     seen = np.zeros(n_frames, bool)
-    seen[frames[np.abs(measured_vr - predicted_vr) < _CHECK_VR_TOLERANCE_MPS]] = True
+    seen[view.frames[np.abs(view.measured_vr - view.predicted_vr)
+                     < _CHECK_VR_TOLERANCE_MPS]] = True
     return seen
 
 
@@ -683,7 +683,7 @@ def radial_velocity_convention(extrinsics: Extrinsics, recording: Recording,
     view = _vehicle_in_view(extrinsics, recording, config)
     if view is None:
         return 1.0, 0, 0
-    _, _, _, measured_vr, predicted_vr = view
+    measured_vr, predicted_vr = view.measured_vr, view.predicted_vr
 
     def matching(factor: float) -> int:
         return int(np.sum(np.abs(measured_vr - factor * predicted_vr)
@@ -699,15 +699,44 @@ def radial_velocity_convention(extrinsics: Extrinsics, recording: Recording,
 
 #: Targets placed in the world at a time when looking for those near the vehicle's box.
 _CHUNK_TARGETS = 2_000_000
+#: The reach at which the radar shows the vehicle: this factor times the 95th percentile of
+#: the horizontal range of the targets that show it, once at least ``_REACH_MIN_SEEN`` do.
+_REACH_FACTOR = 1.25
+_REACH_MIN_SEEN = 50
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleInView:
+    """Where a calibration puts the moving vehicle in the radar's view (``_vehicle_in_view``).
+
+    checked : (n_frames,) frames with the vehicle in view, moving along the line of sight;
+    index, frames : the targets of those frames near its box and their frames;
+    measured_vr, predicted_vr : their radial velocities, measured and as the vehicle's
+        motion predicts;
+    reach_m : horizontal range out to which the radar shows the vehicle.
+    """
+
+    checked: np.ndarray
+    index: I64
+    frames: I64
+    measured_vr: F64
+    predicted_vr: F64
+    reach_m: float
 
 
 def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
-                     radar_view: RadarView | None = None
-                     ) -> tuple[np.ndarray, I64, I64, F64, F64] | None:
+                     radar_view: RadarView | None = None) -> VehicleInView | None:
     """Frames where the calibration puts the moving vehicle in the radar's view, and the
-    targets of those frames near its box (within ``refine.gate_m``): (checked frames mask,
-    the targets' index and frame, measured and predicted radial velocity); None when no frame
-    qualifies. ``radar_view`` is the recording's, computed here when not given."""
+    targets of those frames near its box (within ``refine.gate_m``); None when no frame
+    qualifies. ``radar_view`` is the recording's, computed here when not given.
+
+    The view's range is where the radar shows the vehicle, not where it shows anything: a
+    long-range radar's buildings and poles 300 m off (a twenty-ninth probe's 4D imaging
+    radar) stretched the view past the vehicle's turning points, merged its drives into one
+    and halved the detection ratio with frames in which no radar sees a car. Out to 0.8 of
+    the targets' 99th-percentile range, the reach is then taken from the targets that show
+    the vehicle (``_REACH_FACTOR`` times their 95th percentile) where enough do.
+    """
     targets = recording.targets
     if len(targets) == 0:
         return None
@@ -728,6 +757,28 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
                & (radial_speed > _CHECK_MIN_RADIAL_SPEED_MPS))
     if not checked.any():
         return None
+    view_in = _near_box_targets(extrinsics, recording, config, checked, poses,
+                                0.8 * max_range)
+    seen = np.abs(view_in.measured_vr - view_in.predicted_vr) < _CHECK_VR_TOLERANCE_MPS
+    if int(seen.sum()) < _REACH_MIN_SEEN:
+        return view_in
+    shown = targets.positions_m[view_in.index[seen]]
+    reach = min(view_in.reach_m, _REACH_FACTOR * float(np.percentile(
+        np.hypot(shown[:, 0], shown[:, 1]), 95.0)))
+    checked = checked & (range_m < reach)
+    if not checked.any():
+        return None
+    keep = checked[view_in.frames]
+    return VehicleInView(checked, view_in.index[keep], view_in.frames[keep],
+                         view_in.measured_vr[keep], view_in.predicted_vr[keep], reach)
+
+
+def _near_box_targets(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
+                      checked: np.ndarray, poses: PoseSamples, reach_m: float
+                      ) -> VehicleInView:
+    """The targets of the ``checked`` frames near the vehicle's box, with their measured and
+    predicted radial velocities."""
+    targets = recording.targets
     candidates = np.flatnonzero(checked[targets.frame_index])
     # Every caller looks only at the targets near the box: they are picked a few million at
     # a time, as the placed copies of all targets in those frames of an imaging radar (an
@@ -742,7 +793,8 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
         picked.append((chunk[near], frames[near], world[near]))
     index, frames, world = (np.concatenate(part) for part in zip(*picked))
     predicted_vr = metrics.rigid_radial_velocity(world, extrinsics, poses.velocities_mps[frames])
-    return checked, index, frames, targets.radial_velocity_mps[index], predicted_vr
+    return VehicleInView(checked, index, frames, targets.radial_velocity_mps[index],
+                         predicted_vr, reach_m)
 
 
 def check_vehicle_detection(extrinsics: Extrinsics, recording: Recording,

@@ -180,9 +180,8 @@ def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None
     # with the radial velocities its motion predicts, the drive was seen but not used
     view = quality._vehicle_in_view(scene.truth, rec, scene.config)
     assert view is not None
-    _, near_box, _, _, predicted = view
     v_r = rec.targets.radial_velocity_mps.copy()
-    v_r[near_box] = predicted
+    v_r[view.index] = view.predicted_vr
     moving = replace(rec, targets=replace(rec.targets, radial_velocity_mps=v_r))
     unused = [d for d in quality.drives_through_view(scene.truth, moving, kept, scene.config)
               if d.n_targets < 20]
