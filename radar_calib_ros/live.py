@@ -61,7 +61,7 @@ if TYPE_CHECKING:
     RunFn = Callable[..., CalibrationResult]
 
 __all__ = ['CalibrationCancelled', 'DiagnosticStatusOutput', 'LiveCalibrator', 'LogFn',
-           'STREAMS', 'TransformOutput', 'TriggerOutcome']
+           'LogForwarder', 'STREAMS', 'TransformOutput', 'TriggerOutcome']
 
 _LOG = logging.getLogger(__name__)
 
@@ -167,9 +167,12 @@ class LiveCalibrator:
 
     Notes
     -----
-    Memory: the buffer holds every target as float64 (32 bytes with its radial velocity)
-    plus about 200 bytes per radar frame and 120 / 400 bytes per fix / odometry sample;
-    ``buffer.max_memory_mb`` bounds it.
+    Memory: the buffer holds every target at the message's precision (16 bytes with its
+    radial velocity in float32, 32 in float64) plus about 200 bytes per radar frame and
+    120 / 400 bytes per fix / odometry sample; ``buffer.max_memory_mb`` bounds it. A
+    calibration builds its arrays from a snapshot and needs about 8-9 times the buffer's
+    memory while it runs (a probe's 10 minutes of an 800-target imaging radar: 161 MiB
+    buffered, 1.3 GB at the peak), which the bound does not cover.
     """
 
     def __init__(self, config: CalibConfig, *, log: LogFn,
@@ -250,7 +253,13 @@ class LiveCalibrator:
         mismatch = msgs.frame_id_mismatch(frame_id, self._config.radar.frame_id)
         if mismatch:
             self._warn('radar.frame_id', mismatch)
-        if frame.dropped_nonfinite:
+        if frame.dropped_nonfinite and frame.invalid_declared:
+            # is_dense false: the driver marks the points it has no detection for with NaN
+            # (an imaging radar's fixed-size clouds do every scan), the message's own way
+            # of saying so. Counted, not warned of: a probe's ARS548-like driver kept the
+            # buffer diagnostic at WARN for the whole drive.
+            self.counters['radar_targets.invalid'] += frame.dropped_nonfinite
+        elif frame.dropped_nonfinite:
             self.counters['rejected.radar_targets.nonfinite'] += frame.dropped_nonfinite
             self._warn('radar.nonfinite', f'radar PointCloud2 with {frame.dropped_nonfinite} '
                        f'NaN/inf target(s) of {frame.dropped_nonfinite + len(frame.positions_m)}'
@@ -571,7 +580,7 @@ class LiveCalibrator:
                                     or self._now_ns())
         self._transform, self._calibration = transform, calibration
         self._failure = None
-        summary = self._summary(calibration, result.quality, config)
+        summary = self._summary(calibration, result.quality, config) + self._bound_note()
         self._source = f'computed at {calibration["stamp"]}'
         try:
             write_result_yaml(config.output.path, calibration)
@@ -621,6 +630,20 @@ class LiveCalibrator:
                              > config.quality.max_boresight_sigma_m):
             text += f'. {drive_advice[0]}'
         return text
+
+    def _bound_note(self) -> str:
+        """A note for the answer where ``buffer.max_memory_mb`` dropped data since the buffer
+        was last emptied: the drives in them are missing from the calibration, and its
+        advice ('drive through the view at least 5 times') would blame the driver for it (a
+        probe's 64 MiB bound kept 3 of 8 drives, and the answer said only that)."""
+        since = self.counters - self._counters_at_clear
+        frames = since.get('dropped.radar.max_memory', 0)
+        if not frames:
+            return ''
+        return (f'. NOTE: buffer.max_memory_mb ({self._config.buffer.max_memory_mb:g} MiB) '
+                f'dropped the oldest {frames} radar frames: the drives in them are not in this '
+                'calibration; raise it to keep them (a calibration needs about 8-9 times the '
+                'buffer\'s memory besides)')
 
     def reset(self) -> TriggerOutcome:
         """Empty the buffer (the ``~/reset`` service); counters and outputs are kept."""
@@ -777,7 +800,9 @@ class LiveCalibrator:
         now = self._monotonic()
         if now - self._last_rejection_s < WARN_THROTTLE_S:
             level = 'WARN'
-            message += ('; bad input in the last minute (' + ', '.join(
+            # the counters are totals since the start: said so (a probe read an outage
+            # that had ended minutes before as this minute's)
+            message += ('; bad input in the last minute (totals so far: ' + ', '.join(
                 f'{k[len("rejected."):]}: {v}' for k, v in sorted(rejected.items())) + ')')
         if now - self._last_loss_s < WARN_THROTTLE_S:
             # the window's own drops (max_duration) are the buffer working as configured
@@ -786,7 +811,7 @@ class LiveCalibrator:
             if counters.get('restarts'):
                 lost['restarts (buffer emptied)'] = counters['restarts']
             level = 'WARN'
-            message += ('; data lost in the last minute (' + ', '.join(
+            message += ('; data lost in the last minute (totals so far: ' + ', '.join(
                 f'{k.removeprefix("dropped.")}: {v}' for k, v in sorted(lost.items())) + ')')
         return DiagnosticStatusOutput(f'{self._name}: buffer', level, message,
                                       self._config.radar.frame_id, tuple(values))
@@ -843,6 +868,36 @@ class LiveCalibrator:
             return True
         entry[1] += 1
         return False
+
+
+class LogForwarder(logging.Handler):
+    """Warnings and errors the pipeline logs through Python's ``logging`` (the
+    ``radar_calib_ros`` loggers), passed to the node's log function.
+
+    Why: the node logs through rclpy, but the stages log through ``logging``; with no
+    handler configured, Python printed them bare on stderr, outside the node's log and
+    /rosout (a probe's 'radar stamps shifted' line). Info and debug records stay out, as
+    ``radar-calib`` shows them only with -v.
+    """
+
+    def __init__(self, log: LogFn) -> None:
+        super().__init__(logging.WARNING)
+        self._forward = log
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self._forward('error' if record.levelno >= logging.ERROR else 'warn',
+                          record.getMessage())
+        except Exception:  # noqa: BLE001 - logging must never raise into the pipeline
+            self.handleError(record)
+
+    def install(self) -> LogForwarder:
+        """Attach to the package's logger (undone by :meth:`remove`)."""
+        logging.getLogger('radar_calib_ros').addHandler(self)
+        return self
+
+    def remove(self) -> None:
+        logging.getLogger('radar_calib_ros').removeHandler(self)
 
 
 # --- helpers -------------------------------------------------------------------------------

@@ -37,7 +37,7 @@ from tf2_msgs.msg import TFMessage
 from radar_calib_ros.config import CalibConfig, ParameterSpec, QosConfig, parameter_specs
 from radar_calib_ros.errors import ConfigError
 from radar_calib_ros.live import (
-    DiagnosticStatusOutput, LiveCalibrator, TransformOutput, TriggerOutcome)
+    DiagnosticStatusOutput, LiveCalibrator, LogForwarder, TransformOutput, TriggerOutcome)
 
 __all__ = ['CalibratorNode', 'NODE_NAME', 'main', 'wait_for_callbacks']
 
@@ -137,6 +137,8 @@ class CalibratorNode(Node):
         self._live = LiveCalibrator(self._config, log=self._log,
                                     now_ns=lambda: clock.now().nanoseconds,
                                     name=self.get_fully_qualified_name())
+        # the stages' own warnings (Python logging) into this node's log, not bare stderr
+        self._log_forwarder = LogForwarder(self._log).install()
 
         self._calibration_pub = self.create_publisher(TransformStamped, '~/calibration',
                                                       LATCHED_QOS)
@@ -299,6 +301,12 @@ class CalibratorNode(Node):
         """Ask a running calibration to stop at its next stage, then destroy the node."""
         self._live.cancel()
         self.destroy_node()
+
+    def destroy_node(self) -> None:
+        forwarder = getattr(self, '_log_forwarder', None)
+        if forwarder is not None:
+            forwarder.remove()
+        super().destroy_node()
 
 
 def _answer(response: Trigger.Response, outcome: TriggerOutcome) -> Trigger.Response:

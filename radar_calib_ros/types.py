@@ -38,12 +38,16 @@ class RadarFrame:
 
     positions_m : ndarray of shape (n, 3), x forward, y left, z up [m]
     radial_velocity_mps : ndarray of shape (n,), positive = moving away [m/s]
+    dropped_nonfinite : points with NaN/inf in a used field, left out;
+    invalid_declared : the message said it may hold such points (PointCloud2 ``is_dense``
+        false: a driver's invalid points, not a fault)
     """
 
     stamp_ns: int
     positions_m: F64
     radial_velocity_mps: F64
     dropped_nonfinite: int = 0
+    invalid_declared: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -283,9 +283,20 @@ def test_buffer_bounded_by_memory(tmp_path: Path, store: Any) -> None:
     assert live.counters['dropped.radar.max_memory'] > 0
     assert log.count('buffer.max_memory_mb') == 1
     status = live.diagnostics()[1]
-    assert status.level == 'WARN' and 'data lost in the last minute' in status.message
+    assert status.level == 'WARN'
+    assert 'data lost in the last minute (totals so far: ' in status.message
     assert 'radar.max_memory' in status.message
     consistent(live)
+    # the calibration of what is left says what the bound cost (not only 'drive more')
+    feed(live, store, 2.0, start_ns=T0_NS + 30 * 10**9)
+    outcome = live.calibrate()
+    assert outcome.success, outcome.message
+    assert 'NOTE: buffer.max_memory_mb (16 MiB) dropped the oldest ' in outcome.message
+    assert 'radar frames: the drives in them are not in this calibration' in outcome.message
+    # ... until the buffer is emptied: then nothing was lost for the next one
+    live.reset()
+    feed(live, store, 2.0, start_ns=T0_NS + 40 * 10**9)
+    assert 'NOTE' not in live.calibrate().message
 
 
 def test_update_config_applies_the_new_bound(tmp_path: Path, store: Any) -> None:
@@ -357,16 +368,33 @@ def test_bad_pointcloud_is_counted_logged_once_and_not_buffered(tmp_path: Path, 
 
 
 def test_nan_targets_are_dropped_and_the_frame_kept(tmp_path: Path, store: Any) -> None:
-    live, log = make_live(tmp_path)
+    """NaN/inf points in a cloud that says it has none (is_dense true) are dropped with a
+    warning; in one that says it may (is_dense false: a driver's invalid points, an imaging
+    radar's every scan) they are dropped and counted, and nothing is wrong."""
     positions = np.zeros((6, 3)) + 10.0
     positions[1, 0] = np.nan
     velocity = np.ones(6)
     velocity[4] = np.inf
     message = msgs.encode_pointcloud(store, T0_NS, 'radar', positions, velocity)
+    assert message.is_dense is False
+    live, log = make_live(tmp_path)
+    assert live.on_radar(message)
+    assert live.counters['radar_targets.invalid'] == 2
+    assert 'rejected.radar_targets.nonfinite' not in live.counters
+    assert live._builder._frame_positions[0].shape == (4, 3)
+    assert log.count('NaN/inf') == 0
+    buffer = {s.name.split(': ')[1]: s for s in live.diagnostics()}['buffer']
+    assert buffer.level == 'OK' and ('radar_targets.invalid', '2') in buffer.values
+    consistent(live)
+
+    message.is_dense = True
+    live, log = make_live(tmp_path / 'dense')
     assert live.on_radar(message)
     assert live.counters['rejected.radar_targets.nonfinite'] == 2
     assert live._builder._frame_positions[0].shape == (4, 3)
     assert log.count('NaN/inf') == 1
+    buffer = {s.name.split(': ')[1]: s for s in live.diagnostics()}['buffer']
+    assert buffer.level == 'WARN'
     consistent(live)
 
 
@@ -992,3 +1020,24 @@ def test_a_bug_in_the_pipeline_is_reported_not_raised(tmp_path: Path, store: Any
     assert [s for s, m in log.lines if 'Traceback' in m] == ['error']
     assert live.diagnostics()[0].level == 'ERROR'
     assert not live.calibrating
+
+
+def test_the_pipelines_python_warnings_reach_the_nodes_log() -> None:
+    """The stages log through Python's logging; the node installs a LogForwarder so their
+    warnings reach its own log (rclpy), not bare stderr; info stays out; removed, it is
+    silent."""
+    import logging
+
+    from radar_calib_ros.live import LogForwarder
+    seen: list[tuple[str, str]] = []
+    forwarder = LogForwarder(lambda severity, message: seen.append((severity, message)))
+    forwarder.install()
+    try:
+        logging.getLogger('radar_calib_ros.pipeline').warning('shifted by %+.2f s', 0.05)
+        logging.getLogger('radar_calib_ros.core.refine').info('round %d', 2)
+        logging.getLogger('radar_calib_ros.cli').error('broken')
+        logging.getLogger('other_package').warning('not ours')
+    finally:
+        forwarder.remove()
+    logging.getLogger('radar_calib_ros.pipeline').warning('after removal')
+    assert seen == [('warn', 'shifted by +0.05 s'), ('error', 'broken')]

@@ -331,6 +331,27 @@ def test_parameter_set_is_validated_and_applied(tmp_path: Path) -> None:
         node.shutdown()
 
 
+def test_the_pipelines_warnings_go_to_the_nodes_log_while_it_lives(tmp_path: Path) -> None:
+    import logging
+
+    from radar_calib_ros.live import LogForwarder
+
+    def forwarders() -> int:
+        return sum(isinstance(h, LogForwarder)
+                   for h in logging.getLogger('radar_calib_ros').handlers)
+
+    before = forwarders()
+    node = CalibratorNode(parameter_overrides=[
+        Parameter('output.path', value=str(tmp_path / 'result.yaml'))])
+    try:
+        assert forwarders() == before + 1
+        # through rclpy's logger: no error for a warning from a stage
+        logging.getLogger('radar_calib_ros.pipeline').warning('a stage warns')
+    finally:
+        node.shutdown()
+    assert forwarders() == before
+
+
 def test_result_file_loads_as_parameters_of_another_node(tmp_path: Path) -> None:
     """result.yaml is a parameters file other nodes take (CONTRACT.md): a node that declares
     its parameters from it starts, with empty advice too (an empty list has no type)."""

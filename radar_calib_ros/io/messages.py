@@ -346,7 +346,8 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
                                      p0 * np.sin(p2)])
     else:
         positions = np.column_stack([p0, p1, p2])
-    return RadarFrame(stamp, positions, velocity, dropped_nonfinite=dropped)
+    return RadarFrame(stamp, positions, velocity, dropped_nonfinite=dropped,
+                      invalid_declared=not bool(getattr(msg, 'is_dense', True)))
 
 
 def decode_radarscan(msg: Any) -> RadarFrame:

@@ -240,6 +240,10 @@ def test_nonfinite_rows_dropped_and_counted(ts: Any) -> None:
     fields = [(n, i * 4, FLOAT32) for i, n in enumerate(('x', 'y', 'z', 'velocity'))]
     frame = m.decode_pointcloud(hand_cloud(ts, fields, points, point_step=16))
     assert frame.dropped_nonfinite == 3
+    # the cloud says it may hold invalid points (is_dense false): the node counts, not warns
+    assert frame.invalid_declared
+    dense = m.encode_pointcloud(ts, STAMP_NS, 'radar', XYZ, VEL)
+    assert dense.is_dense and not m.decode_pointcloud(dense).invalid_declared
     np.testing.assert_array_equal(frame.positions_m, XYZ[[0, 2]])
     np.testing.assert_array_equal(frame.radial_velocity_mps, VEL[[0, 2]])
 
