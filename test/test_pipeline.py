@@ -403,6 +403,12 @@ def test_a_clock_shift_the_final_fit_does_not_confirm_is_not_blamed_on_the_clock
         assert pipeline._shift_note(-0.1, None) is None
     assert sum('clock offset between radar and vehicle' in r.message
                for r in caplog.records) == 2
+    # one step of stage 6's grid, the fit finding the clocks together: nothing to set
+    with caplog.at_level('INFO', logger='radar_calib_ros.pipeline'):
+        caplog.clear()
+        assert pipeline._shift_note(0.05, -0.005) is None
+    assert [r.levelname for r in caplog.records] == ['INFO']
+    assert 'no clock offset to set' in caplog.records[0].message
     note = pipeline._shift_note(0.2, -0.0036)
     assert note is not None and '+0.20 s' in note and '-0.004 s' in note
     assert 'vehicle.*' in note
