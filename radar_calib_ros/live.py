@@ -892,12 +892,25 @@ class LogForwarder(logging.Handler):
             self.handleError(record)
 
     def install(self) -> LogForwarder:
-        """Attach to the package's logger (undone by :meth:`remove`)."""
-        logging.getLogger('radar_calib_ros').addHandler(self)
+        """Attach to the package's logger (undone by :meth:`remove`), and to those of its
+        loggers that do not pass records up: ROS 2 launch's logger class (set for every
+        logger made after ``import launch``, as launch_testing's pytest plugin does under
+        ``colcon test``) makes each one with ``propagate = False``."""
+        for logger in self._package_loggers():
+            logger.addHandler(self)
         return self
 
     def remove(self) -> None:
-        logging.getLogger('radar_calib_ros').removeHandler(self)
+        for logger in self._package_loggers():
+            logger.removeHandler(self)
+
+    @staticmethod
+    def _package_loggers() -> list[logging.Logger]:
+        package = logging.getLogger('radar_calib_ros')
+        others = [logger for name, logger in list(logging.root.manager.loggerDict.items())
+                  if name.startswith('radar_calib_ros.') and isinstance(logger, logging.Logger)
+                  and not logger.propagate]
+        return [package, *others]
 
 
 # --- helpers -------------------------------------------------------------------------------
