@@ -16,7 +16,9 @@ from scipy.spatial.transform import Rotation
 from refine_scene import Scene, errors, make_scene
 
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.core import refine, reflection, registration, uncertainty
+from radar_calib_ros.core import (refine, refine_clock, refine_covariance, refine_diagnostics,
+                                  refine_model, refine_noise, refine_targets, reflection,
+                                  registration, uncertainty)
 from radar_calib_ros.core.vehicle import box_corners_world
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
@@ -55,10 +57,10 @@ def test_the_profile_steps_between_front_and_rear_and_between_the_sides() -> Non
     np.testing.assert_allclose(m[:, 1], [0.0, 0.5, 0.5, 0.0, 0.492, -0.492], atol=2e-3)
     k = CalibConfig().refine.profile_harmonics
     steps = [7 + reflection.coefficient_index(k)[c] for c in ('sx', 'sy')]
-    _, free = refine._priors(CalibConfig(), k, True)
+    _, free = refine_model._priors(CalibConfig(), k, True)
     held_config = dataclasses.replace(CalibConfig(), refine=dataclasses.replace(
         CalibConfig().refine, profile_steps=False))
-    _, held = refine._priors(held_config, k, True)
+    _, held = refine_model._priors(held_config, k, True)
     assert np.all(free[steps] == 0.5 * CalibConfig().vehicle.length)
     assert np.all(held[steps] < 1e-5)
     assert np.array_equal(np.delete(free, steps), np.delete(held, steps))
@@ -99,20 +101,20 @@ def test_analytic_jacobian_matches_finite_differences(range_terms: str) -> None:
     cfg = dataclasses.replace(scene.config, refine=dataclasses.replace(
         scene.config.refine, profile_range_terms=range_terms))
     t0 = int(scene.recording.vehicle.stamps_ns[0])
-    poses = refine._Poses.from_track(scene.recording.vehicle, t0, cfg.sync.max_pose_gap,
-                                     scene.recording.fix_sigma_m)
+    poses = refine_model._Poses.from_track(scene.recording.vehicle, t0, cfg.sync.max_pose_gap,
+                                           scene.recording.fix_sigma_m)
     assert np.abs(poses.grades).max() > 0.03
     index = scene.vehicle_target_index[::7]
-    times = refine._Times.of(scene.recording, index, 0.0, t0)
+    times = refine_model._Times.of(scene.recording, index, 0.0, t0)
     # away from the ends of the pose stream, where interpolation clamps
     inside = times.valid(poses, -0.1) & times.valid(poses, 0.1)
     index, times = index[inside], times.subset(inside)
-    data = refine._select(index, times, scene.truth, scene.recording, poses,
-                          np.array([1.0, 0.5, 0.3]), cfg, (-1.5, 1.5))
-    mean, sigma = refine._priors(dataclasses.replace(cfg, refine=dataclasses.replace(
+    data = refine_targets._select(index, times, scene.truth, scene.recording, poses,
+                                  np.array([1.0, 0.5, 0.3]), cfg, (-1.5, 1.5))
+    mean, sigma = refine_model._priors(dataclasses.replace(cfg, refine=dataclasses.replace(
         cfg.refine, azimuth_scale_sigma=0.02)), 2, True)
-    model = refine._Model(data, poses, scene.truth.rotation, scene.truth.translation_m, None,
-                          2, 0.15, mean, sigma, 1.45, range_terms, azimuth_scale=True)
+    model = refine_model._Model(data, poses, scene.truth.rotation, scene.truth.translation_m, None,
+                                2, 0.15, mean, sigma, 1.45, range_terms, azimuth_scale=True)
     # the profile, its range slopes and the radar's azimuth scale
     n_range = {'perspective': 6, 'depth': 1, 'full': 5}[range_terms]
     assert model.n_par == 7 + reflection.n_coefficients(2) + n_range + 1
@@ -143,7 +145,7 @@ def test_radial_velocity_is_the_range_rate_of_a_point_on_the_turning_car() -> No
     fixed on the car (positive moving away), also in a turn."""
     scene = make_scene(0, model='interior', geometry='diverse', noise=False)
     t0 = int(scene.recording.vehicle.stamps_ns[0])
-    poses = refine._Poses.from_track(scene.recording.vehicle, t0, 0.5)
+    poses = refine_model._Poses.from_track(scene.recording.vehicle, t0, 0.5)
     radar = scene.truth.translation_m
     point = np.array([3.5, 0.8, 0.5])            # front-left corner, vehicle frame
 
@@ -534,8 +536,8 @@ def _with_first_pass_copies(scene, forward_m: float, left_m: float,  # type: ign
     first = scene.vehicle_target_index[scene.pass_of_target[scene.vehicle_target_index] == 0]
     assert first.size > 100
     t0 = int(rec.vehicle.stamps_ns[0])
-    poses = refine._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
-    times = refine._Times.of(rec, first, 0.0, t0)
+    poses = refine_model._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
+    times = refine_model._Times.of(rec, first, 0.0, t0)
     _, yaw, _, _, _ = times.poses(poses, scene.truth.time_offset_s)
     world = scene.truth.apply(rec.targets.positions_m[first])
     world[:, 0] += forward_m * np.cos(yaw) - left_m * np.sin(yaw)
@@ -569,7 +571,7 @@ def test_a_queued_neighbour_merged_into_the_vehicle_track_is_gated_out(
     # with the wide first-round gate kept to the end, the neighbour's rear is fitted too
     # (where it does not stand between the radar and the vehicle: no frame is taken for
     # hidden here, or those frames would go for that reason)
-    monkeypatch.setattr(refine, '_OCCLUDER_TARGETS', 10 ** 9)
+    monkeypatch.setattr(refine_targets, '_OCCLUDER_TARGETS', 10 ** 9)
     wide = dataclasses.replace(queued.config, refine=dataclasses.replace(
         queued.config.refine, final_gate_m=queued.config.refine.gate_m))
     ref_wide = refine.refine_extrinsics(queued.initial, queued.recording, queued.tracked,
@@ -612,13 +614,14 @@ def test_velocity_gate_widens_for_a_radar_with_noisy_velocities() -> None:
     noisy = dataclasses.replace(scene, recording=dataclasses.replace(
         rec, targets=dataclasses.replace(rec.targets, radial_velocity_mps=noisy_v)))
     t0 = int(rec.vehicle.stamps_ns[0])
-    poses = refine._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
+    poses = refine_model._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
     index = scene.vehicle_target_index
-    times = refine._Times.of(noisy.recording, index, 0.0, t0)
-    kept = refine._velocity_consistent(scene.truth, index, times, noisy.recording, poses, 0.6)
+    times = refine_model._Times.of(noisy.recording, index, 0.0, t0)
+    kept = refine_targets._velocity_consistent(scene.truth, index, times, noisy.recording, poses,
+                                               0.6)
     # a fixed 0.6 m/s gate would keep only ~77 % of 0.5 m/s noise; 4 robust sigma keep ~all
     assert kept.mean() > 0.99
-    exact = refine._velocity_consistent(scene.truth, index, times, rec, poses, 0.6)
+    exact = refine_targets._velocity_consistent(scene.truth, index, times, rec, poses, 0.6)
     assert exact.mean() > 0.99
 
 
@@ -646,8 +649,8 @@ def test_a_front_rear_height_difference_enters_the_reported_tilt() -> None:
     scene = make_scene(5, model='interior', geometry='head_on')
     rec, idx = scene.recording, scene.vehicle_target_index
     t0 = int(rec.vehicle.stamps_ns[0])
-    poses = refine._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
-    pos, yaw, _, _, _ = refine._Times.of(rec, idx, 0.0, t0).poses(
+    poses = refine_model._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
+    pos, yaw, _, _, _ = refine_model._Times.of(rec, idx, 0.0, t0).poses(
         poses, scene.truth.time_offset_s)
     aspect = reflection.aspect_angles(pos - scene.truth.translation_m, yaw)
     world = scene.truth.apply(rec.targets.positions_m[idx])
@@ -659,6 +662,7 @@ def test_a_front_rear_height_difference_enters_the_reported_tilt() -> None:
     shifts = []
     real = refine._height_difference_shift
     with pytest.MonkeyPatch.context() as mp:
+        # patched where the stage looks it up (refine imports it from refine_covariance)
         mp.setattr(refine, '_height_difference_shift',
                    lambda *a: shifts.append(real(*a)) or shifts[-1])
         before = _run(scene)
@@ -699,7 +703,7 @@ def test_frames_with_the_vehicle_cut_by_the_edge_of_the_view_are_left_out() -> N
                                                   abs=1e-3)
     empty = SimpleNamespace(view_sample_m=lambda: np.zeros((0, 3)))
     assert Recording.radar_view(empty).range_m == np.inf   # type: ignore[arg-type]
-    inside = refine._box_inside_view(pos, yaw, radar, view, config)
+    inside = refine_targets._box_inside_view(pos, yaw, radar, view, config)
     assert inside.tolist() == [True, False, False, True]
 
 
@@ -709,7 +713,7 @@ def test_a_view_too_narrow_for_the_whole_car_keeps_the_cut_views(
     views are all there is: they are used rather than none (which would exit 1)."""
     scene = make_scene(11, model='interior', geometry='diverse')
     full = _run(scene)
-    monkeypatch.setattr(refine, '_box_inside_view',
+    monkeypatch.setattr(refine_targets, '_box_inside_view',
                         lambda pos, *args: np.zeros(pos.shape[0], bool))
     narrow = _run(scene)
     assert narrow.n_targets == full.n_targets
@@ -731,6 +735,7 @@ def test_gate_rounds_on_every_kth_target_end_in_the_same_fit_of_all(
         calls.append(model.data.index.size)
         return solve(model, x0, max_iter)
 
+    # patched where the stage looks it up (refine imports it from refine_model)
     monkeypatch.setattr(refine, '_solve', counted)
     thinned = _run(scene)
     # rounds of about a quarter, each fit (the model check's too) ends on all targets
@@ -766,16 +771,16 @@ def test_a_final_fit_of_every_second_target_reports_the_same_uncertainty(
 
 def _record_candidates(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     """The drive candidates (and the nearest range the vehicle was seen at) of the last
-    ``refine._drive_candidates`` call, kept in the returned dict."""
+    ``refine_diagnostics._drive_candidates`` call, kept in the returned dict."""
     seen: dict[str, Any] = {}
-    original = refine._drive_candidates
+    original = refine_diagnostics._drive_candidates
 
     def spy(*args):  # type: ignore[no-untyped-def]
         seen['nearest'] = args[-1]
         seen['candidates'] = original(*args)
         return seen['candidates']
 
-    monkeypatch.setattr(refine, '_drive_candidates', spy)
+    monkeypatch.setattr(refine_diagnostics, '_drive_candidates', spy)
     return seen
 
 
@@ -833,13 +838,14 @@ def test_a_fit_running_off_along_the_boresight_is_held_where_every_drive_runs_al
 
     def runs_off_until_asked(start: Extrinsics, est: Extrinsics, planar: bool = False) -> None:
         if not asked:
-            raise refine._Diverged('refine', 'the final refinement ran 7.0 m', 7.0, 1.0)
+            raise refine_covariance._Diverged('refine', 'the final refinement ran 7.0 m', 7.0, 1.0)
         check(start, est, planar)
 
     def asking(*args: Any) -> bool:
         asked.append(along_boresight(*args))
         return asked[-1]
 
+    # patched where the stage looks it up (refine imports it from refine_covariance)
     monkeypatch.setattr(refine, '_check_not_diverged', runs_off_until_asked)
     monkeypatch.setattr(refine, '_drives_along_boresight', asking)
     head_on = make_scene(5, model='interior', geometry='head_on')
@@ -903,7 +909,7 @@ def test_passes_that_turn_through_the_view_are_found_with_their_range() -> None:
     data = SimpleNamespace(pass_id=np.repeat([0, 1, 2], n)[order],
                            times=SimpleNamespace(t_s=t.astype(float)))
     est = Extrinsics(np.eye(3), np.zeros(3), 0.0)
-    ranges = refine._turn_ranges(g, data, est)  # type: ignore[arg-type]
+    ranges = refine_diagnostics._turn_ranges(g, data, est)  # type: ignore[arg-type]
     # halfway through the turn: 45 deg round the arc
     expected = math.hypot(30.0 - 10.0 * math.cos(math.pi / 4), -10.0 + 10.0 * math.sin(
         math.pi / 4))
@@ -951,9 +957,9 @@ def test_halves_that_disagree_beyond_the_covariance_are_flagged() -> None:
     shift = np.array([0.0, 0.0, math.radians(1.0), 0.3, 0.4, 0.0, 0.0])
     tight = np.diag([math.radians(0.1) ** 2] * 3 + [0.01] * 3 + [1e-6])
     loose = np.diag([math.radians(0.6) ** 2] * 3 + [0.01] * 3 + [1e-6])
-    assert refine._halves_disagreement(shift, tight) == pytest.approx((1.0, 0.5))
-    assert refine._halves_disagreement(shift, loose) is None
-    assert refine._halves_disagreement(None, tight) is None
+    assert refine_covariance._halves_disagreement(shift, tight) == pytest.approx((1.0, 0.5))
+    assert refine_covariance._halves_disagreement(shift, loose) is None
+    assert refine_covariance._halves_disagreement(None, tight) is None
 
 
 def test_a_radar_turned_halfway_through_is_said_and_covered(
@@ -978,7 +984,7 @@ def test_a_radar_turned_halfway_through_is_said_and_covered(
     err = errors(quiet.extrinsics, scene.truth)
     sigma_rot_deg = np.degrees(np.sqrt(np.trace(quiet.covariance[:3, :3])))
     assert err['rotation'] < 2.0 * sigma_rot_deg, (err, sigma_rot_deg)
-    monkeypatch.setattr(refine, '_HALVES_CHI2', 1.0)
+    monkeypatch.setattr(refine_covariance, '_HALVES_CHI2', 1.0)
     ref = _run(turned)
     advice = ' '.join(ref.diagnostics['advice'])
     assert 'second half of the drives disagree' in advice and 'moved' in advice, advice
@@ -999,6 +1005,7 @@ def test_a_later_round_without_targets_says_how_far_the_first_moved(
         keep = gate(*args, **kwargs)
         return keep if kwargs['first_round'] else np.zeros_like(keep)
 
+    # patched where the stage looks it up (refine imports it from refine_targets)
     monkeypatch.setattr(refine, '_gate', lose_later)
     with pytest.raises(InsufficientDataError,
                        match=r'only 0 targets within 1.5 m of the vehicle box after the first '
@@ -1013,7 +1020,7 @@ def test_a_refinement_running_far_from_the_start_stops(monkeypatch: pytest.Monke
     something else: it stops with the distance and the likely cause (here the bound is
     lowered below the scene's 0.3 m start error; at its value the scene calibrates)."""
     scene = make_scene(2, model='interior', geometry='diverse', targets_per_frame=10.0)
-    monkeypatch.setattr(refine, '_MAX_SHIFT_M', 0.05)
+    monkeypatch.setattr(refine_covariance, '_MAX_SHIFT_M', 0.05)
     with pytest.raises(InsufficientDataError,
                        match=r"refine: the final refinement ran \d+\.\d m and \d+\.\d deg away "
                              r"from the paper's stages' estimate .*folded"):
@@ -1037,16 +1044,16 @@ def test_road_grades_follow_the_heading_and_need_precise_altitude() -> None:
     reversing with the nose) downhill; none from metre-level altitudes."""
     s = np.arange(0.0, 60.0, 0.2)
     positions = np.column_stack([s, np.zeros_like(s), 0.06 * s])
-    uphill = refine._road_grades(positions, np.zeros(s.size), (0.02, 0.03))
-    downhill = refine._road_grades(positions, np.full(s.size, np.pi), (0.02, 0.03))
+    uphill = refine_model._road_grades(positions, np.zeros(s.size), (0.02, 0.03))
+    downhill = refine_model._road_grades(positions, np.full(s.size, np.pi), (0.02, 0.03))
     np.testing.assert_allclose(uphill, 0.06, atol=1e-9)
     np.testing.assert_allclose(downhill, -0.06, atol=1e-9)
-    assert not refine._road_grades(positions, np.zeros(s.size), (1.5, 3.0)).any()
-    assert not refine._road_grades(positions, np.zeros(s.size), None).any()
+    assert not refine_model._road_grades(positions, np.zeros(s.size), (1.5, 3.0)).any()
+    assert not refine_model._road_grades(positions, np.zeros(s.size), None).any()
     # a standstill: the road's grade around where it stands, not 0/0
     stop = np.concatenate([positions[:150], np.repeat(positions[150:151], 100, axis=0),
                            positions[151:]])
-    np.testing.assert_allclose(refine._road_grades(stop, np.zeros(len(stop)), (0.02, 0.03)),
+    np.testing.assert_allclose(refine_model._road_grades(stop, np.zeros(len(stop)), (0.02, 0.03)),
                                0.06, atol=1e-9)
 
 
@@ -1114,18 +1121,18 @@ def test_the_roads_tilt_comes_from_the_vehicles_rtk_altitude() -> None:
     s = rng.uniform(-60, 60, 2000)
     d = np.array([1.0, 1.0]) / math.sqrt(2.0)
     one_road = np.column_stack([s * d[0], s * d[1], 0.04 * s + rng.normal(0, 0.02, s.size)])
-    poses = refine._Poses(np.arange(s.size, dtype=float), one_road, np.zeros(s.size),
-                          np.zeros((s.size, 3)), np.zeros(s.size), np.zeros((s.size, 3)),
-                          np.zeros(s.size), 0.5, np.zeros(s.size))
-    up = refine._road_up(poses, est, (0.02, 0.03))
+    poses = refine_model._Poses(np.arange(s.size, dtype=float), one_road, np.zeros(s.size),
+                                np.zeros((s.size, 3)), np.zeros(s.size), np.zeros((s.size, 3)),
+                                np.zeros(s.size), 0.5, np.zeros(s.size))
+    up = refine_model._road_up(poses, est, (0.02, 0.03))
     np.testing.assert_allclose(up, np.array([-0.04 * d[0], -0.04 * d[1], 1.0])
                                / math.sqrt(1 + 0.04 ** 2), atol=1e-3)
     xy = rng.uniform(-50, 50, (2000, 2))
     plane = np.column_stack([xy, 0.02 * xy[:, 0] - 0.01 * xy[:, 1]])
     poses = dataclasses.replace(poses, positions_m=plane)
-    up = refine._road_up(poses, est, (0.02, 0.03))
+    up = refine_model._road_up(poses, est, (0.02, 0.03))
     np.testing.assert_allclose(up, np.array([-0.02, 0.01, 1.0]) / math.sqrt(1.0005), atol=1e-4)
-    np.testing.assert_array_equal(refine._road_up(poses, est, (1.5, 3.0)), [0.0, 0.0, 1.0])
+    np.testing.assert_array_equal(refine_model._road_up(poses, est, (1.5, 3.0)), [0.0, 0.0, 1.0])
 
 
 def test_drives_are_advised_for_the_views_part_of_the_uncertainty_alone(
@@ -1164,13 +1171,13 @@ def test_a_drifting_radar_clock_is_found_from_the_passes_offsets() -> None:
         return [[float(ti), 0.03 + rate * (ti - 300.0) + float(e), 1.0]
                 for ti, e in zip(t[:n], noise[:n])]
 
-    drift = refine._clock_drift(offsets(-100e-6), 300.0)
+    drift = refine_clock._clock_drift(offsets(-100e-6), 300.0)
     assert drift is not None and drift.reference_s == 300.0
     assert drift.rate == pytest.approx(-100e-6, abs=3 * drift.sigma)
-    assert refine._clock_drift(offsets(0.0), 300.0) is None
-    assert refine._clock_drift(offsets(-100e-6, n=4), 300.0) is None
-    assert refine._clock_drift(offsets(-15e-6), 300.0) is None
-    small = refine._clock_drift(offsets(-15e-6), 300.0, found=True)
+    assert refine_clock._clock_drift(offsets(0.0), 300.0) is None
+    assert refine_clock._clock_drift(offsets(-100e-6, n=4), 300.0) is None
+    assert refine_clock._clock_drift(offsets(-15e-6), 300.0) is None
+    small = refine_clock._clock_drift(offsets(-15e-6), 300.0, found=True)
     assert small is None or abs(small.rate) > 2 * small.sigma
 
 
@@ -1256,7 +1263,7 @@ def test_a_noisy_elevation_is_measured_from_the_heights_and_named(
     assert len(named) == 1 and 'refine.elevation_sigma_deg' in named[0]
     err = errors(measured.extrinsics, scene.truth)
     assert err['vertical'] < 0.15 and err['rotation'] < 0.3
-    monkeypatch.setattr(refine, '_ELEVATION_NOISE_RATIO', math.inf)
+    monkeypatch.setattr(refine_noise, '_ELEVATION_NOISE_RATIO', math.inf)
     unmeasured = errors(_run(scene).extrinsics, scene.truth)
     assert unmeasured['vertical'] > 0.3 and unmeasured['rotation'] > 0.5
 
@@ -1279,9 +1286,9 @@ def test_frames_where_another_road_user_hides_the_vehicle_are_left_out() -> None
     # the vehicle's box in those frames: the blockers stand 1 m in front of its nearest
     # corner, on the corner's line of sight, 0.5 m above the road
     t0 = int(rec.vehicle.stamps_ns[0])
-    poses = refine._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
+    poses = refine_model._Poses.from_track(rec.vehicle, t0, scene.config.sync.max_pose_gap)
     one = np.array([first[frame_of[first] == f][0] for f in hide])
-    times = refine._Times.of(rec, one, 0.0, t0)
+    times = refine_model._Times.of(rec, one, 0.0, t0)
     pos, yaw, _, _, _ = times.poses(poses, truth.time_offset_s)
     blockers, blocker_frames = [], []
     for f, p, corners in zip(hide, pos, box_corners_world(pos, yaw, scene.config.vehicle)):
@@ -1338,20 +1345,21 @@ def test_a_clock_step_between_passes_is_told_from_a_drift() -> None:
     for a -91 ppm drift); a free-running clock drifts them along a line. Each model is
     found for its own data and not for the other's; steady offsets give neither."""
     step = _pass_offsets(lambda t: -0.004 if t < 500.0 else -0.15)
-    found = refine._clock_step(step)
+    found = refine_clock._clock_step(step)
     assert found is not None and found.step_s == pytest.approx(-0.146, abs=0.006)
     assert 450.0 < found.step_at_s < 540.0
     # the offset reported is that of the side with the more passes (after the step here)
     assert found.reference_s > found.step_at_s
     assert found.offset_change_s(np.array([100.0]))[0] == pytest.approx(0.146, abs=0.006)
     line = _pass_offsets(lambda t: 150e-6 * (t - 600.0))
-    assert refine._clock_step(line) is None
-    assert refine._clock_drift(line, 600.0) is not None
+    assert refine_clock._clock_step(line) is None
+    assert refine_clock._clock_drift(line, 600.0) is not None
     steady = _pass_offsets(lambda t: 0.02)
-    assert refine._clock_step(steady) is None and refine._clock_drift(steady, 600.0) is None
+    assert refine_clock._clock_step(steady) is None
+    assert refine_clock._clock_drift(steady, 600.0) is None
     # what is left of a step found before is measured where it was
     left = _pass_offsets(lambda t: 0.0 if t < 500.0 else -0.01, noise_s=0.002)
-    rest = refine._clock_step(left, at_s=found.step_at_s)
+    rest = refine_clock._clock_step(left, at_s=found.step_at_s)
     assert rest is not None and rest.step_s == pytest.approx(-0.01, abs=0.003)
 
 
@@ -1374,7 +1382,7 @@ def test_a_radar_turned_between_passes_is_placed_in_time_by_the_final_fit(
     positions[later] = positions[later] @ turn.T
     turned = dataclasses.replace(scene, recording=dataclasses.replace(
         scene.recording, targets=dataclasses.replace(targets, positions_m=positions)))
-    monkeypatch.setattr(refine, '_HALVES_CHI2', 1.0)
+    monkeypatch.setattr(refine_covariance, '_HALVES_CHI2', 1.0)
     found = _run(turned).diagnostics.get('mount_turn')
     assert isinstance(found, MountTurn), found
     assert (found.passes_before, found.passes_after) == (at, n_pass - at)
@@ -1428,11 +1436,12 @@ def test_line_spread_is_the_spread_across_the_road() -> None:
                              along * np.sin(heading) + across * np.cos(heading),
                              rng.normal(0.5, 0.3, 4000)]) + [500.0, -200.0, 6.0]
     data = SimpleNamespace(sqrt_weight=np.ones(4000))
-    assert refine._line_axis(world, data)[2] == pytest.approx(0.6, rel=0.05)  # type: ignore
+    spread = refine_covariance._line_axis(world, data)[2]  # type: ignore
+    assert spread == pytest.approx(0.6, rel=0.05)
     # two roads crossing: no longer one line
     crossing = np.concatenate([world, world[:, [1, 0, 2]]])
     data = SimpleNamespace(sqrt_weight=np.ones(8000))
-    assert refine._line_axis(crossing, data)[2] > 10.0  # type: ignore
+    assert refine_covariance._line_axis(crossing, data)[2] > 10.0  # type: ignore
 
 
 def _fake_refinement(rotation_deg: float, altitude_m: float, moved_deg: float,
@@ -1510,10 +1519,11 @@ def test_the_lanes_of_the_two_directions_are_measured_across_the_road() -> None:
     velocity = np.column_stack([np.where(east, 10.0, -10.0), np.zeros(n), np.zeros(n)])
     data = SimpleNamespace(sqrt_weight=np.ones(n))
     axis = np.array([-1.0, 0.0, 0.0])     # either sign of the road's axis
-    separation = refine._lane_separation(world, velocity, axis, data)  # type: ignore
+    separation = refine_covariance._lane_separation(world, velocity, axis, data)  # type: ignore
     assert separation == pytest.approx(3.5, abs=0.05)
     one_way = SimpleNamespace(sqrt_weight=np.where(east, 1.0, 0.01))
-    assert refine._lane_separation(world, velocity, axis, one_way) is None  # type: ignore
+    assert refine_covariance._lane_separation(world, velocity, axis,  # type: ignore
+                                              one_way) is None
 
 
 def test_the_start_uncertainty_counts_only_where_the_data_leave_the_position_to_the_prior(
@@ -1524,14 +1534,14 @@ def test_the_start_uncertainty_counts_only_where_the_data_leave_the_position_to_
     config = CalibConfig()
     n_par = 8
     prior = np.zeros((n_par, n_par))
-    prior[3, 3] = prior[4, 4] = 1.0 / refine._START_SIGMA_M ** 2
+    prior[3, 3] = prior[4, 4] = 1.0 / refine_model._START_SIGMA_M ** 2
     hessians = np.zeros((3, n_par, n_par))
     hessians[:, 4, 4] = 1e6          # the data measure y to a millimetre, say nothing of x
     for k in (0, 1, 2, 5, 6, 7):
         hessians[:, k, k] = 1.0
     passes = uncertainty.PassCovariance(np.zeros((n_par, n_par)), np.zeros((3, n_par)), 3,
                                         1.0, hessians, np.zeros((3, n_par)))
-    term = refine._start_term(passes, prior, config)
+    term = refine_covariance._start_term(passes, prior, config)
     length = config.vehicle.length
-    assert term[3, 3] == pytest.approx(length ** 2 - refine._START_SIGMA_M ** 2, rel=1e-6)
+    assert term[3, 3] == pytest.approx(length ** 2 - refine_model._START_SIGMA_M ** 2, rel=1e-6)
     assert term[4, 4] < 1e-6 and np.allclose(term[[0, 1, 2, 5, 6, 7]], 0.0)

@@ -1,0 +1,125 @@
+"""The noise a fit of the final refinement (stage 8, ``core/refine.py``) shows, for the
+whitening of its next gate round.
+
+From the fit's geometry (``_Model.geometry``): the reflectors' scatter around the profile
+(``_scatter``), and the radar's azimuth and elevation noise as the radial velocities and the
+heights show it (``_azimuth_noise_deg``, ``_elevation_noise_deg``), with the thresholds
+from which a measured noise replaces the configured one and is named. Separate because these
+are estimates from residuals that feed back into the weights, neither part of the model nor
+of the choice of targets.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core.refine_model import _Selected
+from radar_calib_ros.types import F64
+
+
+#: Azimuth noise shown by the radial velocities [deg] from which, when also twice
+#: ``refine.azimuth_sigma_deg``, it replaces that in the whitening and is named. Our
+#: simulator's radar (0.25-0.5 deg) shows 0.3-0.8 there (other noise grows with the
+#: tangential speed too), an independent generator's 0.3 / 0.6 / 1 / 2 deg show 0.28 /
+#: 0.52 / 0.89 / 1.80.
+_AZIMUTH_NOISE_NOTE_DEG = 1.0
+
+
+def _noisy_azimuth(shown_deg: float, configured_deg: float) -> bool:
+    return shown_deg >= max(_AZIMUTH_NOISE_NOTE_DEG, 2.0 * configured_deg)
+
+
+def _azimuth_noise_deg(g: dict[str, F64], data: _Selected) -> float:
+    """The radar's azimuth noise [deg] as the radial velocities show it, from the fit's
+    geometry ``g`` (``_Model.geometry``) over ``data``.
+
+    A line of sight turned by azimuth noise n changes the predicted v_r by n times the
+    speed across it (W_perp, the rigid car's velocity field at the radar, across the line
+    of sight), whatever point of the car reflected: the v_r residuals' variance grows as
+    s_v^2 + s_az^2 W_perp^2. Fitted over ten quantile bins of |W_perp| with a robust spread
+    per bin (wheel micro-Doppler and stray targets are not Gaussian); 0 where the slope is
+    not three of its standard errors above zero or the car never crossed the lines of sight
+    fast. Position residuals cannot show it: the car's own extent across the line of sight
+    swamps the noise there.
+    """
+    if data.index.size < 10 * _NOISE_BIN_TARGETS:
+        return 0.0
+    unit, velocity = g['unit_v'], g['point_velocity']
+    w_perp = velocity[:, 1] * unit[:, 0] - velocity[:, 0] * unit[:, 1]
+    slope, top = _spread_growth(np.abs(w_perp), g['v_pred'] - data.v_mps)
+    if top < _NOISE_CROSS_SPEED_MPS ** 2:
+        return 0.0    # seen head-on only: too little speed across the lines of sight
+    return float(np.degrees(math.sqrt(slope)))
+
+
+def _spread_growth(driver: F64, residual: F64) -> tuple[float, float]:
+    """How the residuals' variance grows with the square of ``driver`` (>= 0): over ten
+    quantile bins of the driver, the robust spread (1.4826 MAD about the bin's median) of
+    the residuals against the bin's mean driver squared, fitted by a straight line. Returns
+    its slope (0 where not three of its standard errors above zero: no growth beyond the
+    scatter of the bins) and the top bin's mean driver squared."""
+    edges = np.quantile(driver, np.linspace(0.0, 1.0, 11))
+    bins = np.clip(np.searchsorted(edges, driver, side='right') - 1, 0, 9)
+    d2 = np.bincount(bins, driver ** 2, minlength=10) / np.maximum(
+        np.bincount(bins, minlength=10), 1)
+    spread2 = np.array([(1.4826 * np.median(np.abs(r - np.median(r)))) ** 2 if r.size else 0.0
+                        for r in (residual[bins == b] for b in range(10))])
+    design = np.column_stack([np.ones(10), d2])
+    coef, *_ = np.linalg.lstsq(design, spread2, rcond=None)
+    misfit = spread2 - design @ coef
+    slope_var = float(misfit @ misfit) / 8.0 * np.linalg.inv(design.T @ design)[1, 1]
+    slope = float(coef[1]) if coef[1] > 3.0 * math.sqrt(max(slope_var, 0.0)) else 0.0
+    return slope, float(d2[-1])
+
+
+def _noisy_elevation(shown_deg: float, configured_deg: float) -> bool:
+    return shown_deg >= _ELEVATION_NOISE_RATIO * configured_deg
+
+
+#: Elevation noise shown by the heights, as a multiple of ``refine.elevation_sigma_deg``,
+#: from which it replaces that in the whitening and is named.
+_ELEVATION_NOISE_RATIO = 1.4
+
+
+def _elevation_noise_deg(g: dict[str, F64], data: _Selected) -> float:
+    """The radar's elevation noise [deg] as the heights of the vehicle's targets show it,
+    from the fit's geometry ``g`` (``_Model.geometry``) over ``data``.
+
+    Elevation noise e moves a target vertically by its range times e, so the vertical
+    residuals' variance grows as s_z^2 + (r s_el)^2, s_z the reflectors' own scatter in
+    height. Fitted over ten quantile bins of range with a robust spread per bin (each bin
+    centred on its own median, so a mean height that changes with range does not count);
+    0 where the slope is not three of its standard errors above zero. Only targets that
+    give height information count (``_inside_elevation_view``).
+    """
+    ok = data.vertical_ok
+    if int(ok.sum()) < 10 * _NOISE_BIN_TARGETS:
+        return 0.0
+    slope, _ = _spread_growth(g['range'][ok], g['err'][ok, 2])
+    return float(np.degrees(math.sqrt(slope)))
+
+
+#: Fewest targets per bin of the azimuth-noise fit, and the least RMS speed across the
+#: lines of sight [m/s] its top bin must reach (1 deg of noise then adds 0.07 m/s).
+_NOISE_BIN_TARGETS = 30
+_NOISE_CROSS_SPEED_MPS = 4.0
+
+
+def _scatter(g: dict[str, F64], floor_m: float, config: CalibConfig) -> F64:
+    """Spread of the reflectors around the profile in the vehicle frame (x, y, z) for the
+    next round's whitening, from the fit's geometry ``g`` (``_Model.geometry``): the robust
+    spread (1.4826 MAD) of the position residuals minus the typical radar noise along that
+    axis (range/azimuth horizontally, elevation vertically), floored."""
+    c, s = g['c'], g['s']
+    e = g['err']
+    local = np.column_stack([c * e[:, 0] + s * e[:, 1], -s * e[:, 0] + c * e[:, 1], e[:, 2]])
+    mad = 1.4826 * np.median(np.abs(local - np.median(local, axis=0)), axis=0)
+    rng = g['range']
+    cfg = config.refine
+    noise_h = np.median(0.5 * (cfg.range_sigma_m ** 2
+                               + (rng * math.radians(cfg.azimuth_sigma_deg)) ** 2))
+    noise_v = np.median((rng * math.radians(cfg.elevation_sigma_deg)) ** 2)
+    var = mad ** 2 - np.array([noise_h, noise_h, noise_v])
+    return np.sqrt(np.maximum(var, (0.2 * floor_m) ** 2))
