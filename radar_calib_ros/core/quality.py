@@ -579,11 +579,22 @@ def _unused_drives_advice(unused: list[Drive], n_drives: int,
             'vehicle clear of other traffic and well inside the view.')
 
 
+#: Lost drives name a moved mount only when each lasted this long [s] and the radar showed
+#: the vehicle in this share of its frames: a re-aim leaves whole drives seen but off the
+#: box (a probe's 5 deg: 42 s, 0.70), while the recording's end cutting its last drive
+#: short leaves a fragment (our bench's low_mount: 3 s, 0.38, named before this).
+_MOUNT_DRIVE_MIN_S = 10.0
+_MOUNT_DRIVE_SEEN_SHARE = 0.5
+
+
 def _mount_moved_between(lost: list[Drive], used: list[Drive]
                          ) -> tuple[str, float, float] | None:
-    """('before' or 'after', from_s, to_s): the lost drives all precede (or all follow)
-    every drive used, and the gap between the two groups; None where they interleave."""
-    if not lost or not used:
+    """('before' or 'after', from_s, to_s): the lost drives, whole and seen, all precede
+    (or all follow) every drive used, and the gap between the two groups; None where they
+    interleave or are fragments."""
+    if not lost or not used or not all(
+            d.end_s - d.start_s >= _MOUNT_DRIVE_MIN_S
+            and d.seen_share >= _MOUNT_DRIVE_SEEN_SHARE for d in lost):
         return None
     if max(d.end_s for d in lost) <= min(d.start_s for d in used):
         return 'before', max(d.end_s for d in lost), min(d.start_s for d in used)
