@@ -907,14 +907,17 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
     try:
         return _calibration_clock_rejoined(recording, _scaled_to_vehicle(config), progress)
     except InsufficientDataError as err:
+        if type(err) is not InsufficientDataError:
+            raise
         notes = _clock_notes(recording, config) + _fix_grade_failure_note(recording)
-        if 'set sync.time_offset to' in err.reason:
+        reason = _without_view_claim(err.reason, notes)
+        if 'set sync.time_offset to' in reason:
             # the stages found the offset that makes the passes agree: the clock notes would
             # say it twice more (a probe read the 18 s three times in one error)
             notes = [n for n in notes if 'sync.time_offset' not in n]
-        if type(err) is not InsufficientDataError or not notes:
+        if not notes and reason == err.reason:
             raise
-        raise InsufficientDataError(err.stage, ' '.join((err.reason.rstrip('.') + '.',
+        raise InsufficientDataError(err.stage, ' '.join((reason.rstrip('.') + '.',
                                                          *notes))) from err
 
 
@@ -1127,15 +1130,33 @@ def _never_in_view_lead(tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
     wide = [c for c in companies if c.in_view >= 2]
     # the most passes any of them had company on
     best = max(wide, key=lambda c: (c.met, c.met / c.in_view))
-    return (f'The calibration vehicle was most likely never in the radar\'s view: of the '
-            f'{n_hyps} tracks that fit a stretch of its drive, none, taken for the '
-            'vehicle\'s, has tracks moving with it (within '
+    return (f'{_NEVER_IN_VIEW}: of the {n_hyps} tracks that fit a stretch of its drive, '
+            'none, taken for the vehicle\'s, has tracks moving with it (within '
             f'{hypotheses.COMPANY_M:g} m and {hypotheses.COMPANY_MPS:g} m/s) on most of the '
             'passes it then makes through the area the radar\'s moving targets cover (up to '
             f'{best.reach_m:.0f} m from the radar): at best on {best.met} of {best.in_view}, '
             f'nor with the radar stamps shifted by up to +-{_NEVER_IN_VIEW_CLOCK_S:g} s. '
-            'They are other road users\'; drive the vehicle through the radar\'s view. In '
-            'detail:')
+            'They are other road users\'; drive the vehicle through the radar\'s view (or, '
+            'if it did drive there, the radar\'s clock is further off than that: check '
+            f'sync.time_offset).{_IN_DETAIL.rstrip()}')
+
+
+#: How a failure's reason starts where ``_never_in_view_lead`` leads it, and what separates
+#: that lead from the stage's own reason.
+_NEVER_IN_VIEW = 'The calibration vehicle was most likely never in the radar\'s view'
+_IN_DETAIL = ' In detail: '
+
+
+def _without_view_claim(reason: str, notes: list[str]) -> str:
+    """The reason without its never-in-view lead where it, or the clock notes, name a
+    sync.time_offset to set: the vehicle was in view, on another clock. A probe's radar
+    stamped 18 s off (leap seconds) and one 2 s off were both told 'most likely never in
+    the radar's view' over the right remedy; the lead's own search covers +-1 s only."""
+    if not reason.startswith(_NEVER_IN_VIEW) or _IN_DETAIL not in reason:
+        return reason
+    if 'set sync.time_offset to' in reason or any('sync.time_offset' in n for n in notes):
+        return reason.split(_IN_DETAIL, 1)[1]
+    return reason
 
 
 class _MountTurned(Exception):

@@ -822,3 +822,25 @@ def test_a_seen_vehicle_is_not_said_never_in_view(drive: Any) -> None:
             config.sync, time_offset=offset, estimate_time_offset=False))
         tracks, ground = _stage_6_inputs(recording, shifted)
         assert _never_in_view_lead(tracks, ground, recording, shifted) is None, offset
+
+
+def test_a_clock_remedy_overrules_the_never_in_view_lead() -> None:
+    """Where the reason (leap seconds found) or the clock notes (the receipts) name a
+    sync.time_offset to set, the vehicle was in view on another clock: the never-in-view
+    lead goes (an independent sweep: radars 18 s and 2 s off were told 'most likely never
+    in the radar's view' over the right remedy). Without such a remedy it stays."""
+    lead = (f'{pipeline._NEVER_IN_VIEW}: of the 27 tracks ... They are other road users\'; '
+            'drive the vehicle through the radar\'s view. In detail:')
+    leap = (f'{lead} no consistent calibration-vehicle track: ...; they agree with the radar '
+            'stamps shifted by -18 s, a whole number of leap seconds: set sync.time_offset '
+            'to -18 and calibrate again')
+    assert pipeline._without_view_claim(leap, []).startswith('no consistent')
+    plain = f'{lead} no consistent calibration-vehicle track: none agrees'
+    receipts = ['As the recording received them, the radar\'s header stamps are 0.0 s behind '
+                'the vehicle\'s; sync.time_offset (2 s) leaves +2.0 s: set sync.time_offset '
+                'to about 0.0.']
+    assert pipeline._without_view_claim(plain, receipts) == (
+        'no consistent calibration-vehicle track: none agrees')
+    assert pipeline._without_view_claim(plain, []) == plain
+    assert pipeline._without_view_claim(plain, ['frames outside the poses']) == plain
+    assert pipeline._without_view_claim('no consistent track', receipts) == 'no consistent track'
