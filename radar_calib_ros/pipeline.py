@@ -907,17 +907,14 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
     try:
         return _calibration_clock_rejoined(recording, _scaled_to_vehicle(config), progress)
     except InsufficientDataError as err:
-        if type(err) is not InsufficientDataError:
-            raise
         notes = _clock_notes(recording, config) + _fix_grade_failure_note(recording)
-        reason = _without_view_claim(err.reason, notes)
-        if 'set sync.time_offset to' in reason:
+        if 'set sync.time_offset to' in err.reason:
             # the stages found the offset that makes the passes agree: the clock notes would
             # say it twice more (a probe read the 18 s three times in one error)
             notes = [n for n in notes if 'sync.time_offset' not in n]
-        if not notes and reason == err.reason:
+        if type(err) is not InsufficientDataError or not notes:
             raise
-        raise InsufficientDataError(err.stage, ' '.join((reason.rstrip('.') + '.',
+        raise InsufficientDataError(err.stage, ' '.join((err.reason.rstrip('.') + '.',
                                                          *notes))) from err
 
 
@@ -1088,7 +1085,7 @@ def _stage_6_lead(err: InsufficientDataError,
     if err.stage != 'hypotheses' or type(err) is not InsufficientDataError or not made:
         return None
     ground, tracks = made[0]
-    return _never_in_view_lead(tracks, ground, recording, config)
+    return _never_in_view_lead(err.reason, tracks, ground, recording, config)
 
 
 #: Clock offsets [s] on top of the given one at which the vehicle must have no company
@@ -1099,10 +1096,10 @@ _NEVER_IN_VIEW_CLOCK_S = 1.0
 _NEVER_IN_VIEW_CLOCK_STEP_S = 0.25
 
 
-def _never_in_view_lead(tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
+def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
                         recording: Recording, config: CalibConfig) -> str | None:
-    """The sentence that leads a failure where the vehicle was most likely never in the
-    radar's view, with what shows it (``hypotheses.view_company``), else None.
+    """The sentence that leads a failure (``reason``) where the vehicle was most likely
+    never in the radar's view, with what shows it (``hypotheses.view_company``), else None.
 
     Why: there the failure read as one of agreement ('the cluster of 4 hypotheses over 3
     passes has only 1 that agree') or of radial velocities ('the final refinement ran
@@ -1110,8 +1107,13 @@ def _never_in_view_lead(tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
     even agree by chance (an operator probe's M2). Said only where no track, taken for the
     vehicle's, has tracks moving with it on most of the passes it then makes through the
     view, at the given clock offset and at others up to ``_NEVER_IN_VIEW_CLOCK_S`` away:
-    where the vehicle is seen, its own tracks do at the right one.
+    where the vehicle is seen, its own tracks do at the right one. Not said where the
+    reason or the clock notes already name a sync.time_offset to set (checked first, as
+    the search costs up to nine hypothesis generations): the vehicle was in view, on
+    another clock (``_clock_remedy_named``).
     """
+    if _clock_remedy_named(reason, _clock_notes(recording, config)):
+        return None
     steps = int(round(_NEVER_IN_VIEW_CLOCK_S / _NEVER_IN_VIEW_CLOCK_STEP_S))
     first: tuple[int, list[hypotheses.ViewCompany]] | None = None
     for k in [0, *(sign * i for i in range(1, steps + 1) for sign in (1, -1))]:
@@ -1130,7 +1132,8 @@ def _never_in_view_lead(tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
     wide = [c for c in companies if c.in_view >= 2]
     # the most passes any of them had company on
     best = max(wide, key=lambda c: (c.met, c.met / c.in_view))
-    return (f'{_NEVER_IN_VIEW}: of the {n_hyps} tracks that fit a stretch of its drive, '
+    return (f'The calibration vehicle was most likely never in the radar\'s view: of the '
+            f'{n_hyps} tracks that fit a stretch of its drive, '
             'none, taken for the vehicle\'s, has tracks moving with it (within '
             f'{hypotheses.COMPANY_M:g} m and {hypotheses.COMPANY_MPS:g} m/s) on most of the '
             'passes it then makes through the area the radar\'s moving targets cover (up to '
@@ -1138,25 +1141,16 @@ def _never_in_view_lead(tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
             f'nor with the radar stamps shifted by up to +-{_NEVER_IN_VIEW_CLOCK_S:g} s. '
             'They are other road users\'; drive the vehicle through the radar\'s view (or, '
             'if it did drive there, the radar\'s clock is further off than that: check '
-            f'sync.time_offset).{_IN_DETAIL.rstrip()}')
+            'sync.time_offset). In detail:')
 
 
-#: How a failure's reason starts where ``_never_in_view_lead`` leads it, and what separates
-#: that lead from the stage's own reason.
-_NEVER_IN_VIEW = 'The calibration vehicle was most likely never in the radar\'s view'
-_IN_DETAIL = ' In detail: '
-
-
-def _without_view_claim(reason: str, notes: list[str]) -> str:
-    """The reason without its never-in-view lead where it, or the clock notes, name a
-    sync.time_offset to set: the vehicle was in view, on another clock. A probe's radar
-    stamped 18 s off (leap seconds) and one 2 s off were both told 'most likely never in
-    the radar's view' over the right remedy; the lead's own search covers +-1 s only."""
-    if not reason.startswith(_NEVER_IN_VIEW) or _IN_DETAIL not in reason:
-        return reason
-    if 'set sync.time_offset to' in reason or any('sync.time_offset' in n for n in notes):
-        return reason.split(_IN_DETAIL, 1)[1]
-    return reason
+def _clock_remedy_named(reason: str, notes: list[str]) -> bool:
+    """Whether a failure's reason (leap seconds found by stage 6) or the clock notes (the
+    receipts) name a sync.time_offset to set: then the vehicle was in view on another
+    clock, and the never-in-view lead would mislead (an independent sweep: radars stamped
+    18 s and 2 s off were told 'most likely never in the radar's view' over the right
+    remedy; the lead's own search covers +-1 s only)."""
+    return 'set sync.time_offset to' in reason or any('sync.time_offset' in n for n in notes)
 
 
 class _MountTurned(Exception):
@@ -1273,7 +1267,7 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         # the paper's stages agreed, and what followed found no vehicle where they put it:
         # a chance agreement of other road users where the vehicle was never in view (a
         # bench drive far out of range: 'the final refinement ran 6.1 m away')
-        lead = _never_in_view_lead(tracks, ground, recording, config)
+        lead = _never_in_view_lead(err.reason, tracks, ground, recording, config)
         if lead is None:
             raise
         raise InsufficientDataError(err.stage, f'{lead} {err.reason}') from err

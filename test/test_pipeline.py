@@ -821,26 +821,50 @@ def test_a_seen_vehicle_is_not_said_never_in_view(drive: Any) -> None:
         shifted = dataclasses.replace(config, sync=dataclasses.replace(
             config.sync, time_offset=offset, estimate_time_offset=False))
         tracks, ground = _stage_6_inputs(recording, shifted)
-        assert _never_in_view_lead(tracks, ground, recording, shifted) is None, offset
+        # (the search itself decides here: no clock remedy short-cuts it)
+        assert not pipeline._clock_remedy_named('', pipeline._clock_notes(recording, shifted))
+        assert _never_in_view_lead('', tracks, ground, recording, shifted) is None, offset
 
 
-def test_a_clock_remedy_overrules_the_never_in_view_lead() -> None:
+def test_a_clock_remedy_overrules_the_never_in_view_lead(
+        drive: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     """Where the reason (leap seconds found) or the clock notes (the receipts) name a
-    sync.time_offset to set, the vehicle was in view on another clock: the never-in-view
-    lead goes (an independent sweep: radars 18 s and 2 s off were told 'most likely never
-    in the radar's view' over the right remedy). Without such a remedy it stays."""
-    lead = (f'{pipeline._NEVER_IN_VIEW}: of the 27 tracks ... They are other road users\'; '
-            'drive the vehicle through the radar\'s view. In detail:')
-    leap = (f'{lead} no consistent calibration-vehicle track: ...; they agree with the radar '
-            'stamps shifted by -18 s, a whole number of leap seconds: set sync.time_offset '
-            'to -18 and calibrate again')
-    assert pipeline._without_view_claim(leap, []).startswith('no consistent')
-    plain = f'{lead} no consistent calibration-vehicle track: none agrees'
+    sync.time_offset to set, the vehicle was in view on another clock: no never-in-view
+    lead, and no search for one (an independent sweep: radars 18 s and 2 s off were told
+    'most likely never in the radar's view' over the right remedy). Without such a remedy
+    the search runs."""
+    from dataclasses import replace
+
+    from radar_calib_ros.io.bag import read_recording
+
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    searched: list[int] = []
+    real = pipeline.hypotheses.generate_hypotheses
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        searched.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline.hypotheses, 'generate_hypotheses', counted)
+    no_ground: Any = None  # not reached where a remedy is named; no tracks use it
+    leap = ('no consistent calibration-vehicle track: ...; they agree with the radar stamps '
+            'shifted by -18 s, a whole number of leap seconds: set sync.time_offset to -18 and '
+            'calibrate again')
+    assert pipeline._clock_remedy_named(leap, [])
+    assert pipeline._never_in_view_lead(leap, (), no_ground, recording, config) is None
+    plain = 'no consistent calibration-vehicle track: none agrees'
     receipts = ['As the recording received them, the radar\'s header stamps are 0.0 s behind '
                 'the vehicle\'s; sync.time_offset (2 s) leaves +2.0 s: set sync.time_offset '
                 'to about 0.0.']
-    assert pipeline._without_view_claim(plain, receipts) == (
-        'no consistent calibration-vehicle track: none agrees')
-    assert pipeline._without_view_claim(plain, []) == plain
-    assert pipeline._without_view_claim(plain, ['frames outside the poses']) == plain
-    assert pipeline._without_view_claim('no consistent track', receipts) == 'no consistent track'
+    assert pipeline._clock_remedy_named(plain, receipts)
+    assert not pipeline._clock_remedy_named(plain, [])
+    assert not pipeline._clock_remedy_named(plain, ['frames outside the poses'])
+    # the receipts of a radar 2 s off the configured offset: its clock notes name it
+    off = replace(recording, counters={**recording.counters, 'radar_stamp_offset_ms': -2000})
+    assert any('sync.time_offset' in n for n in pipeline._clock_notes(off, config))
+    assert pipeline._never_in_view_lead(plain, (), no_ground, off, config) is None
+    assert not searched
+    # no remedy named: the search runs (here on no tracks: nothing to claim)
+    assert pipeline._never_in_view_lead(plain, (), no_ground, recording, config) is None
+    assert searched
