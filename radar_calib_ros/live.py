@@ -631,13 +631,17 @@ class LiveCalibrator:
             text += f'. {drive_advice[0]}'
         return text
 
+    def _counters_since_clear(self) -> Counter[str]:
+        """The counts since the buffer was last emptied (the start, ~/reset, a restart of
+        the stamps): what the data a calibration ran on lost."""
+        return self.counters - self._counters_at_clear
+
     def _bound_note(self) -> str:
         """A note for the answer where ``buffer.max_memory_mb`` dropped data since the buffer
         was last emptied: the drives in them are missing from the calibration, and its
         advice ('drive through the view at least 5 times') would blame the driver for it (a
         probe's 64 MiB bound kept 3 of 8 drives, and the answer said only that)."""
-        since = self.counters - self._counters_at_clear
-        frames = since.get('dropped.radar.max_memory', 0)
+        frames = self._counters_since_clear().get('dropped.radar.max_memory', 0)
         if not frames:
             return ''
         return (f'. NOTE: buffer.max_memory_mb ({self._config.buffer.max_memory_mb:g} MiB) '
@@ -820,8 +824,7 @@ class LiveCalibrator:
     def _losses(self, most: int = 4) -> str:
         """The largest counts of messages refused or dropped since the buffer was last
         emptied (the start, ~/reset, a restart of the stamps), e.g. 'radar.no_stamp 5651'."""
-        since = self.counters - self._counters_at_clear
-        lost = sorted(((n, k.split('.', 1)[1]) for k, n in since.items()
+        lost = sorted(((n, k.split('.', 1)[1]) for k, n in self._counters_since_clear().items()
                        if k.startswith(('rejected.', 'dropped.')) and n > 0), reverse=True)
         return ', '.join(f'{name} {n}' for n, name in lost[:most])
 

@@ -830,7 +830,7 @@ def view_company(hyps: Sequence[Hypothesis], tracks: Sequence[SmoothedTrack],
     usable = [t for t in tracks if t.stamps_ns.size >= 2]
     if not hyps or not usable or len(vehicle) < 2:
         return []
-    xy = np.concatenate([t.positions_m for t in usable])
+    all_xy = np.concatenate([t.positions_m for t in usable])
     states = np.concatenate([t.states for t in usable])
     velocity = states[:, 3:4] * np.column_stack([np.cos(states[:, 2]), np.sin(states[:, 2])])
     stamps = pose_stamps_ns(np.concatenate([t.stamps_ns for t in usable]),
@@ -838,12 +838,11 @@ def view_company(hyps: Sequence[Hypothesis], tracks: Sequence[SmoothedTrack],
     poses = interpolate_poses(vehicle, stamps, config.sync.max_pose_gap)
     moving = np.hypot(poses.velocities_mps[:, 0], poses.velocities_mps[:, 1])
     keep = poses.valid & (moving >= TRACKABLE_SPEED_MPS)
-    xy, velocity, stamps = xy[keep], velocity[keep], stamps[keep]
+    xy, velocity, stamps = all_xy[keep], velocity[keep], stamps[keep]
     centre_at_track = reflection_centre_world(poses, config)[keep, :2]
     velocity_world = poses.velocities_mps[keep, :2]
     # the area the radar's moving targets cover: as far as any track reached, between the
     # azimuths any track lay at (as ``vehicle_view_passes`` takes it)
-    all_xy = np.concatenate([t.positions_m for t in usable])
     reach = float(np.hypot(all_xy[:, 0], all_xy[:, 1]).max())
     azimuths = np.arctan2(all_xy[:, 1], all_xy[:, 0])
     az_lo, az_hi = float(azimuths.min()), float(azimuths.max())
