@@ -35,15 +35,44 @@ def _load_config(params: str | None) -> CalibConfig:
 
 
 class _Progress:
-    """tqdm bars on stderr when it is a terminal (or forced); silent otherwise."""
+    """Progress on stderr: tqdm bars on a terminal (``'bars'``), nothing (``'off'``), or,
+    where stderr is a log or a pipe (``'lines'``), a plain line now and then once a run has
+    lasted ``quiet_s``: a headless run of a dense radar's recording printed nothing for
+    1-7 minutes (a twenty-ninth probe), while short runs stay as quiet as before."""
 
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled
+    def __init__(self, mode: str, *, quiet_s: float = 10.0, every_s: float = 10.0,
+                 clock: Any = time.monotonic) -> None:
+        if mode not in ('bars', 'lines', 'off'):
+            raise ValueError(f'progress mode {mode!r}')
+        self.mode = mode
         self._bar: Any = None
         self._stage_bar: Any = None
+        self._clock = clock
+        self._start = clock()
+        self._quiet_s = quiet_s
+        self._every_s = every_s
+        self._last_line: float | None = None
+
+    @classmethod
+    def for_stderr(cls, forced: bool | None) -> _Progress:
+        """``--progress`` / ``--no-progress`` / neither (bars on a terminal, else lines)."""
+        if forced is None:
+            return cls('bars' if sys.stderr.isatty() else 'lines')
+        return cls('bars' if forced else 'off')
+
+    def _line(self, text: str, *, force: bool = False) -> None:
+        now = self._clock()
+        if now - self._start < self._quiet_s:
+            return
+        if not force and self._last_line is not None and now - self._last_line < self._every_s:
+            return
+        self._last_line = now
+        print(f'progress: {text}, {now - self._start:.0f} s', file=sys.stderr, flush=True)
 
     def reading(self, done: int, total: int) -> None:
-        if not self.enabled:
+        if self.mode == 'lines':
+            self._line(f'reading the recording, {done:,} of {total:,} messages')
+        if self.mode != 'bars':
             return
         if self._bar is None:
             from tqdm import tqdm
@@ -52,7 +81,12 @@ class _Progress:
         self._bar.update(done - self._bar.n)
 
     def stage(self, name: str, fraction: float) -> None:
-        if not self.enabled:
+        if self.mode == 'lines' and name != 'done':
+            # every stage start once the run is long: the stages are few, and a line per
+            # stage says where a slow run spends its time
+            self._line(f'calibrating, stage {name} ({fraction:.0%} done)',
+                       force=True)
+        if self.mode != 'bars':
             return
         if self._bar is not None:
             self._bar.close()
@@ -182,7 +216,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     config = _radar_of_frame(args.bag, config)
     _refuse_ambiguous_radar(args.bag, config)
     _warn_frame_id(args.bag, config)
-    progress = _Progress(args.progress if args.progress is not None else sys.stderr.isatty())
+    progress = _Progress.for_stderr(args.progress)
     logged = _LoggedWarnings()
     package_log = logging.getLogger('radar_calib_ros')
     package_log.addHandler(logged)
@@ -513,7 +547,7 @@ def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
     params = bag / 'params.yaml'
     config = _load_config(str(params) if params.is_file() else None)
     print(f'2/4 calibrating {bag} ...', file=out)
-    result, read_s = calibrate_bag(bag, config, progress=_Progress(sys.stderr.isatty()))
+    result, read_s = calibrate_bag(bag, config, progress=_Progress.for_stderr(None))
     calibration = result.calibration(config)
     write_result_yaml(work / 'result.yaml', calibration)
     print('3/4 result', file=out)
@@ -581,7 +615,9 @@ def build_parser() -> argparse.ArgumentParser:
                    'of the combined all_radars.yaml goes')
     p.add_argument('--json', help='also write the result as JSON here')
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
-                   help='progress bars (default: when stderr is a terminal)')
+                   help='progress bars on stderr (default: bars on a terminal; elsewhere, once '
+                   'a run passes 10 s, a plain "progress:" line per stage and every 10 s '
+                   'while reading; --no-progress: none)')
     p.add_argument('--all-radars', action='store_true',
                    help='calibrate every radar topic of the recording, in parallel processes: '
                    'one result per radar frame in --output-dir plus all_radars.yaml with '

@@ -223,8 +223,9 @@ def test_vehicle_never_in_view_exits_1_without_result(
     from radar_calib_ros.sim import simulate
     bag = tmp_path / 'never'
     simulate(bag, seed=3, duration_s=90.0, scenario='vehicle_never_in_view')
+    # --no-progress: a slow machine's 'progress:' lines are not what this test counts
     code, _, err = _run(['calibrate', str(bag), '--params', str(bag / 'params.yaml'),
-                         '--output', str(tmp_path / 'r.yaml')], capsys)
+                         '--output', str(tmp_path / 'r.yaml'), '--no-progress'], capsys)
     assert code == 1
     assert err.startswith('error: ') and err.count('\n') == 1
     assert not (tmp_path / 'r.yaml').exists()
@@ -466,3 +467,43 @@ def test_log_warnings_read_as_the_tools_own() -> None:
     record = logging.LogRecord('radar_calib_ros.io.bag', logging.WARNING, __file__, 1,
                                '%r has no metadata.yaml', ('bag',), None)
     assert _PlainFormatter().format(record) == "warning: 'bag' has no metadata.yaml"
+
+
+def test_progress_off_a_terminal_is_a_line_now_and_then_once_a_run_is_long(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """stderr to a log or a pipe: nothing in the first 10 s (short runs stay quiet), then a
+    line at each stage and every 10 s while reading; --no-progress: nothing at all."""
+    import sys
+
+    from radar_calib_ros import cli
+    now = [0.0]
+    err = _Stream(False)
+    monkeypatch.setattr(sys, 'stderr', err)
+    progress = cli._Progress('lines', clock=lambda: now[0])
+    for t, done in ((1.0, 1000), (9.0, 9000), (11.0, 11000), (15.0, 15000), (22.0, 22000)):
+        now[0] = t
+        progress.reading(done, 40_000)
+    for t, stage in ((23.0, 'moving'), (24.0, 'cluster'), (40.0, 'done')):
+        now[0] = t
+        progress.stage(stage, 0.5)
+    lines = err.getvalue().splitlines()
+    assert lines == [
+        'progress: reading the recording, 11,000 of 40,000 messages, 11 s',
+        'progress: reading the recording, 22,000 of 40,000 messages, 22 s',
+        'progress: calibrating, stage moving (50% done), 23 s',
+        'progress: calibrating, stage cluster (50% done), 24 s']
+    monkeypatch.setattr(sys, 'stderr', _Stream(False))
+    assert cli._Progress.for_stderr(None).mode == 'lines'
+    assert cli._Progress.for_stderr(False).mode == 'off'
+    assert cli._Progress.for_stderr(True).mode == 'bars'
+    monkeypatch.setattr(sys, 'stderr', _Stream(True))
+    assert cli._Progress.for_stderr(None).mode == 'bars'
+    quiet = _Stream(False)
+    monkeypatch.setattr(sys, 'stderr', quiet)
+    off = cli._Progress('off', clock=lambda: now[0])
+    now[0] = 100.0
+    off.reading(1, 2)
+    off.stage('refine', 0.8)
+    assert quiet.getvalue() == ''
+    with pytest.raises(ValueError):
+        cli._Progress('loud')
