@@ -8,7 +8,8 @@ the clock-offset error, the reported 1-sigma (along / across the boresight), whe
 the issue's targets. Bags are cached under bench/out/ (delete to regenerate).
 
     .venv/bin/python bench/bench_accuracy.py [--models skin interior mixed]
-        [--scenarios ...] [--seeds 1] [--duration 600] [--jobs 2]
+        [--scenarios ...] [--seeds 1] [--duration 600] [--jobs 2] [--json FILE]
+        [--set refine.KEY=VALUE ...]   (an experiment's parameters over every scenario's)
 """
 from __future__ import annotations
 
@@ -22,10 +23,27 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import yaml
+
+from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.errors import ConfigError
+
 OUT = Path(__file__).resolve().parent / 'out'
 
 
-def run_one(scenario: str, model: str, seed: int, duration: float) -> dict[str, Any]:
+def _overridden(config: CalibConfig, overrides: tuple[str, ...]) -> CalibConfig:
+    """--set KEY=VALUE: an experiment's parameters (YAML values) over the scenario's own."""
+    if not overrides:
+        return config
+    flat = config.to_flat()
+    for item in overrides:
+        key, _, value = item.partition('=')
+        flat[key] = yaml.safe_load(value)
+    return CalibConfig.from_mapping(flat)
+
+
+def run_one(scenario: str, model: str, seed: int, duration: float,
+            overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     from radar_calib_ros.cli import calibrate_bag
     from radar_calib_ros.config import CalibConfig
     from radar_calib_ros.errors import CalibrationError
@@ -39,6 +57,7 @@ def run_one(scenario: str, model: str, seed: int, duration: float) -> dict[str, 
     truth = load_ground_truth(bag)
     assert truth is not None
     config = CalibConfig.from_file(bag / 'params.yaml')
+    config = _overridden(config, overrides)
     row: dict[str, Any] = {'scenario': scenario, 'model': model, 'seed': seed}
     start = time.perf_counter()
     try:
@@ -79,10 +98,17 @@ def main() -> int:
     parser.add_argument('--duration', type=float, default=600.0)
     parser.add_argument('--jobs', type=int, default=2)
     parser.add_argument('--json', help='write all rows here')
+    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                        help='a parameter over every scenario\'s own (e.g. '
+                        'refine.max_iterations=3), for experiments')
     args = parser.parse_args()
+    try:   # a mistyped --set fails here, not in every worker
+        _overridden(CalibConfig(), tuple(args.set))
+    except ConfigError as err:
+        parser.error(str(err))
     OUT.mkdir(parents=True, exist_ok=True)
-    jobs = [(s, m, seed, args.duration) for m in args.models for s in args.scenarios
-            for seed in range(1, args.seeds + 1)]
+    jobs = [(s, m, seed, args.duration, tuple(args.set)) for m in args.models
+            for s in args.scenarios for seed in range(1, args.seeds + 1)]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         rows = list(pool.map(run_one, *zip(*jobs)))
     if args.json:
