@@ -19,7 +19,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.config import CalibConfig, VehicleConfig
 from radar_calib_ros.errors import CalibrationError, ResultFileError, exit_code
 
 if TYPE_CHECKING:
@@ -118,10 +118,11 @@ def calibrate_bag(bag: str | Path, config: CalibConfig, *, progress: _Progress |
 
 def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | None = None,
                   read_s: float | None = None,
-                  sources: Mapping[str, str] | None = None) -> list[str]:
+                  sources: Mapping[str, str] | None = None,
+                  vehicle: VehicleConfig | None = None) -> list[str]:
     """The one-screen summary of a calibration (with the topics it was read from, where
     given: a twenty-fifth probe's radar picked by type among a lidar's points was never
-    named)."""
+    named; and the vehicle's reference point the altitude rests on, where given)."""
     q = calibration.get('quality') or {}
     sigma = q.get('sigma') or {}
     e, n, alt = calibration['translation']
@@ -134,6 +135,13 @@ def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | N
         f'  roll/pitch/yaw  {r:.3f} / {p:.3f} / {y:.3f} deg   boresight '
         f'{calibration["boresight_azimuth_deg"]:.2f} deg from true north',
     ]
+    if vehicle is not None:
+        # The data cannot show which point of the vehicle its pose describes: a roof
+        # antenna's pose with a rear axle's vehicle.* put an eleventh probe's radar 1.2 m
+        # high, inside nothing and unnamed. Said beside the altitude, so that it is read.
+        lines.insert(2, f'  reference  pose point {vehicle.ref_height:.2f} m above the road, '
+                     f'{vehicle.rear_overhang:.2f} m ahead of the rear bumper '
+                     '(vehicle.ref_height, rear_overhang): the altitude rests on it')
     if sources:
         lines.insert(1, '  topics     ' + ', '.join(
             f'{_ROLE_NAMES.get(role, role)} {topic}' for role, topic in sources.items()))
@@ -230,7 +238,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     if args.json:
         write_result_json(args.json, calibration)
     for line in summary_lines(calibration, result.stage_times_s, read_s,
-                              result.recording.sources):
+                              result.recording.sources, config.vehicle):
         print(line, file=out)
     if _echo_advice(out):
         for advice in calibration['quality'].get('advice') or []:
@@ -551,7 +559,8 @@ def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
     calibration = result.calibration(config)
     write_result_yaml(work / 'result.yaml', calibration)
     print('3/4 result', file=out)
-    for line in summary_lines(calibration, result.stage_times_s, read_s):
+    for line in summary_lines(calibration, result.stage_times_s, read_s,
+                              vehicle=config.vehicle):
         print(line, file=out)
     truth = load_ground_truth(bag)
     if truth is not None:

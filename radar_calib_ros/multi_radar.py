@@ -132,7 +132,7 @@ def calibrate_topic(bag: str, params: str | None, topic: str, frame_id: str) -> 
     calibration = result.calibration(config)
     return RadarOutcome(topic, frame_id, calibration, None, 0,
                         tuple(summary_lines(calibration, result.stage_times_s, read_s,
-                                            result.recording.sources)),
+                                            result.recording.sources, config.vehicle)),
                         read_s, run_s)
 
 

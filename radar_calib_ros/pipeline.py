@@ -828,11 +828,12 @@ def _data_notes(recording: Recording, corrections: list[str],
                      f'{"ahead of" if forward_cm >= 0 else "behind"} and {abs(left_cm) / 100:.2f} '
                      f'm {"left" if left_cm >= 0 else "right"} of the Odometry\'s (seen in every '
                      'turn: a GNSS antenna\'s lever arm?). The calibration places the vehicle '
-                     'by the fixes, so vehicle.* must describe the box around the fixes\' point '
+                     'by the fixes (the Odometry\'s twist moved to their point), so vehicle.* '
+                     'must describe the box around the fixes\' point '
                      '(overhangs from it, vehicle.ref_height its height above the road); drawn '
-                     'around the Odometry\'s point, the radar is off by about that lever arm '
-                     'horizontally and by the antenna\'s height vertically, which the data '
-                     'cannot show. Fix the parameters, or publish the fixes at the reference '
+                     'around the Odometry\'s point, the radar\'s altitude is off by the '
+                     'antenna\'s height (and its position by up to the lever arm), which the '
+                     'data cannot show. Fix the parameters, or publish the fixes at the reference '
                      'point, and calibrate again.')
     odometry = max(counters.get('odometry', 0), 1)
     notes += [_dropped(counters.get('radar_messages_malformed', 0), 'radar message',

@@ -164,6 +164,13 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
                 counters['fix_lever_arm_left_cm'] = int(round(100.0 * left))
                 _LOG.warning('the NavSatFix positions describe a point %+.2f m forward and '
                              '%+.2f m left of the Odometry\'s', forward, left)
+                # The vehicle is placed by the fixes: its velocity must be that of their
+                # point, which in a turn moves by omega x l against the Odometry's (0.7 m/s
+                # for a roof antenna 1.5 m ahead at 0.47 rad/s: radial velocities that far
+                # off in every turn)
+                v_level = v_level.copy()
+                v_level[:, 0] -= rate * left
+                v_level[:, 1] += rate * forward
             if lag_s:
                 # the fix stamped t shows where the vehicle was at t - lag
                 counters['fix_lag_ms'] = int(round(1000.0 * lag_s))
@@ -1115,8 +1122,8 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
         """The Odometry's velocity at the fixes' times minus ``lag``, turned by the angle
         that fits the fixes' best (an INS heading offset, ``_heading_offset``, must not
         pass for a lag: on a steady turn the two are one), plus (``with_arm``) the lever
-        arm that fits best; also that lever arm and its (2, 2) normal matrix (None without
-        one, or where the turns do not determine it)."""
+        arm that fits best; also that lever arm and the (3, 3) normal matrix of the last
+        turn and the arm (None without one, or where the turns do not determine it)."""
         v = odom_at(tu - lag)
         angle = math.atan2(float(np.sum(v[:, 0] * vu[:, 1] - v[:, 1] * vu[:, 0])),
                            float(np.sum(v[:, 0] * vu[:, 0] + v[:, 1] * vu[:, 1])))
@@ -1125,11 +1132,16 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
             return v, None
         cols = _lever_columns(np.interp(tu - lag, to, rate),
                               np.interp(tu - lag, to, unwrapped) + angle)
-        normal = np.einsum('nki,nkj->ij', cols, cols)
+        # the arm with a last turn of the velocities, together: where the drive turns
+        # more one way than the other, a turn found first takes up part of the arm's
+        # sideways velocity (an eleventh probe: 0.29 deg, and the arm 1.42 m for 1.5)
+        both = np.concatenate([np.column_stack([-v[:, 1], v[:, 0]])[:, :, None], cols],
+                              axis=2)
+        normal = np.einsum('nki,nkj->ij', both, both)
         if np.linalg.cond(normal) > 1e8:
             return v, None
-        arm = np.linalg.solve(normal, np.einsum('nki,nk->i', cols, vu - v))
-        return v + cols @ arm, (arm, normal)
+        solved = np.linalg.solve(normal, np.einsum('nki,nk->i', both, vu - v))
+        return v + both @ solved, (solved[1:], normal)
 
     lags = np.arange(-_FIX_LAG_MAX_S, _FIX_LAG_MAX_S + 1e-9, _FIX_LAG_STEP_S)
     speed = float(np.median(np.hypot(vu[:, 0], vu[:, 1])))
@@ -1141,7 +1153,18 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
         step by step around the best of those (the misfit is smooth over a tenth of a
         second: a turn or a braking takes longer)."""
         def misfit(lag: float) -> float:
-            return float(np.mean((vu - matched_at(lag, with_arm)[0]) ** 2))
+            matched = matched_at(lag, with_arm)[0]
+            if not with_arm:
+                return float(np.mean((vu - matched) ** 2))
+            # Along the travel only: across it, in a turn, a lag moves the velocity as a
+            # lever arm ahead does (by the speed times the lag, for the arm by the yaw rate
+            # times its length), and on turns all driven at one speed the two are one.
+            # There the fixes' finite-difference velocities decided, and an eleventh
+            # probe's exactly stamped antenna fixes 1.5 m ahead of a rear-axle Odometry
+            # read as a -39 ms lag plus a 0.93 m arm; a braking or speeding up shows the
+            # lag alone.
+            heading = matched / np.maximum(np.linalg.norm(matched, axis=1), 1e-9)[:, None]
+            return float(np.mean(np.sum((vu - matched) * heading, axis=1) ** 2))
 
         coarse = np.arange(0, lags.size, _FIX_LAG_COARSE)
         best = int(coarse[np.argmin([misfit(lags[i]) for i in coarse])])
@@ -1166,6 +1189,16 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
             return None
         return float(lags[k] + 0.5 * _FIX_LAG_STEP_S * (cost[k - 1] - cost[k + 1]) / curvature)
 
+    def _arm_at(lag: float, found: tuple[float, float] | None
+                ) -> tuple[float, float] | None:
+        """The lever arm refitted at the lag taken (none: 0), where one was found: it
+        moves by the speed times the lag (14 mm per ms at 14 m/s), and the search's lag,
+        left untaken under ``_FIX_LAG_MIN_S``, still moved it (-7.6 ms: 0.1 m)."""
+        if found is None:
+            return None
+        refitted = matched_at(lag, True)[1]
+        return found if refitted is None else (float(refitted[0][0]), float(refitted[0][1]))
+
     # with a lever arm first; where none shows, the lag alone (a free lever arm of a few
     # centimetres moved the slow_gnss scenario's lag from 118 to 127 ms; the truth is 120)
     lever_arm = None
@@ -1175,7 +1208,7 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
         if fitted is not None:
             arm, normal = fitted
             variance = float(np.mean((vu - matched) ** 2))
-            arm_se = np.sqrt(np.diag(np.linalg.inv(normal)) * variance * correlated)
+            arm_se = np.sqrt(np.diag(np.linalg.inv(normal))[1:] * variance * correlated)
             length = float(np.hypot(*arm))
             if length >= _LEVER_ARM_MIN_M and length >= _LEVER_ARM_SIGMAS * float(
                     np.hypot(*arm_se)):
@@ -1199,12 +1232,12 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
     along_turn = float(np.sum(acc * perp)) ** 2 / max(float(np.sum(perp ** 2)), 1e-12)
     information = max(float(np.sum(acc ** 2)) - along_turn, 0.0) / correlated
     if information <= 0.0:
-        return FixAgainstOdometry(0.0, lever_arm)
+        return FixAgainstOdometry(0.0, _arm_at(0.0, lever_arm))
     se = math.sqrt(variance / information)
     if abs(lag) < _FIX_LAG_MIN_S or abs(lag) < _FIX_LAG_SIGMAS * se:
         _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms: not taken', 1e3 * lag,
                    1e3 * se)
-        return FixAgainstOdometry(0.0, lever_arm)
+        return FixAgainstOdometry(0.0, _arm_at(0.0, lever_arm))
     _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms', 1e3 * lag, 1e3 * se)
     return FixAgainstOdometry(lag, lever_arm)
 

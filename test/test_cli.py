@@ -507,3 +507,20 @@ def test_progress_off_a_terminal_is_a_line_now_and_then_once_a_run_is_long(
     assert quiet.getvalue() == ''
     with pytest.raises(ValueError):
         cli._Progress('loud')
+
+
+def test_the_summary_says_which_point_of_the_vehicle_the_altitude_rests_on() -> None:
+    """A roof antenna's pose with a rear axle's vehicle.* puts the radar metres high and the
+    data cannot show it (an eleventh probe): the summary names the point it assumed."""
+    import dataclasses
+
+    from radar_calib_ros.cli import summary_lines
+    calibration = {'radar_frame': 'radar', 'world_frame': 'utm', 'epsg': 32632,
+                   'translation': [1.0, 2.0, 3.0], 'rpy_deg': [0.0, 0.0, 0.0],
+                   'latitude': 48.0, 'longitude': 11.0, 'boresight_azimuth_deg': 90.0}
+    assert not any('reference' in line for line in summary_lines(calibration))
+    vehicle = dataclasses.replace(CalibConfig().vehicle, ref_height=1.73, rear_overhang=2.55)
+    lines = summary_lines(calibration, vehicle=vehicle)
+    assert lines[1].startswith('  position') and lines[2] == (
+        '  reference  pose point 1.73 m above the road, 2.55 m ahead of the rear bumper '
+        '(vehicle.ref_height, rear_overhang): the altitude rests on it')
