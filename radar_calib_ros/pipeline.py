@@ -791,8 +791,10 @@ def _data_notes(recording: Recording, corrections: list[str],
                 f'the {poses}\' error')
         fix = ('Have the INS report the GNSS solution it rests on (its pose covariance), and '
                'check the correction link.' if odometry else
-               'Have the GNSS driver report RTK float (NavSatFix status 1, or its covariance), '
-               'and check the correction link.')
+               'Have the GNSS driver report RTK float in the fixes\' covariance (decimetres, '
+               'not RTK fixed\'s centimetres) or as a status below GBAS_FIX (2; NavSatFix '
+               'has no RTK float of its own, and drivers map it differently), and check the '
+               'correction link.')
         notes.append(f'The vehicle\'s {source} jump {jumps} time{"s" if jumps > 1 else ""} '
                      f'by {sizes} ({when}, {poses}\' time) where {smooth} shows smooth '
                      'motion: an RTK fix lost for RTK float and regained, while '
