@@ -118,10 +118,6 @@ def cluster_targets(targets: Targets, cfg: ClusterConfig) -> FrameClusters:
                              np.zeros(0, np.int64))
     order = np.argsort(targets.frame_index, kind='stable')
     frames = targets.frame_index[order]
-    features = np.empty((n, 4))
-    features[:, :3] = targets.positions_m[order]
-    features[:, 3] = cfg.velocity_weight * targets.radial_velocity_mps[order]
-    sorted_labels = np.full((n, k_frames), -1, dtype=np.int64)
     windows: list[I64] = []
     n_labels = 0
     f_first, f_last = int(frames[0]), int(frames[-1])
@@ -134,15 +130,22 @@ def cluster_targets(targets: Targets, cfg: ClusterConfig) -> FrameClusters:
         w1 = min(w0 + _CHUNK_FRAMES, f_last + 1, max(w0 + 1, by_targets))
         lo = int(np.searchsorted(frames, w0 - k_frames + 1, side='left'))
         hi = int(np.searchsorted(frames, w1 - 1, side='right'))
+        # The features and labels of a chunk's targets are gathered and written back per
+        # chunk: all targets' sorted copies (four float64 and K int64 columns each) were
+        # 350 MB for a dense imaging radar's 3.9 million moving targets.
+        rows = order[lo:hi]
+        features = np.empty((rows.size, 4))
+        features[:, :3] = targets.positions_m[rows]
+        features[:, 3] = cfg.velocity_weight * targets.radial_velocity_mps[rows]
         chunk_labels, chunk_windows = _cluster_windows(
-            features[lo:hi], frames[lo:hi], w0, w1, k_frames, cfg.eps_m, cfg.min_samples)
+            features, frames[lo:hi], w0, w1, k_frames, cfg.eps_m, cfg.min_samples)
         member = chunk_labels >= 0
-        block = sorted_labels[lo:hi]
+        block = labels[rows]
         block[member] = chunk_labels[member] + n_labels
+        labels[rows] = block
         windows.append(chunk_windows)
         n_labels += chunk_windows.shape[0]
         w0 = w1
-    labels[order] = sorted_labels
     cluster_window = np.concatenate(windows) if windows else np.zeros(0, np.int64)
     member = labels >= 0
     owner = np.broadcast_to(np.arange(n)[:, None], labels.shape)[member]
