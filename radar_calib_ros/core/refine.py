@@ -619,7 +619,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         est = Extrinsics(rot, trans, tau)
         # the next round whitens with the azimuth noise the radar shows where that is far
         # above the configured one (each round anew: the first, gated wide, shows more)
-        geometry = model.geometry(fit.x)
+        geometry = model.geometry(fit.x, jacobian=False)
         azimuth_noise = _azimuth_noise_deg(geometry, data)
         elevation_noise = _elevation_noise_deg(geometry, data)
         measured = {}
@@ -748,7 +748,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     # deg at a reported 0.24 (all 11 such drives outside 2 sigma). A consider term of
     # ``refine.model_sigma_height_range_m`` per unit of relative range says so: about 2
     # deg of tilt per metre, i.e. 0.3-0.4 deg at 0.2 m.
-    range_shift = _height_shift(model, x_hat, j, w, jp, model.geometry(x_hat)['rho'])
+    rho = model.geometry(x_hat, jacobian=False)['rho']
+    range_shift = _height_shift(model, x_hat, j, w, jp, rho)
     cov7 += _pose_block(np.outer(range_shift, range_shift), estimate_tau) * (
         cfg.model_sigma_height_range_m ** 2)
     if not recording.has_elevation:
@@ -840,7 +841,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     if recording.has_elevation and ground_normal is not None:
         diagnostics['tilt_from_plane_deg'] = math.degrees(float(np.linalg.norm(
             Rotation.from_matrix(tilt_anchor @ est.rotation.T).as_rotvec()[:2])))
-        geometry = model.geometry(x_hat)
+        geometry = model.geometry(x_hat, jacobian=False)
         world = geometry['world']
         axis, centre, diagnostics['line_spread_m'] = _line_axis(world, data)
         diagnostics['line_axis'] = axis

@@ -226,7 +226,7 @@ def _height_difference_shift(model: _Model, x: F64, jacobian: F64, sqrt_w: F64,
     about a quarter of its size (the gate and weights of the later rounds follow the data).
     """
     return _height_shift(model, x, jacobian, sqrt_w, j_prior,
-                         np.cos(model.geometry(x)['aspect']))
+                         np.cos(model.geometry(x, jacobian=False)['aspect']))
 
 
 def _height_shift(model: _Model, x: F64, jacobian: F64, sqrt_w: F64, j_prior: F64,

@@ -25,7 +25,7 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
                  pc: uncertainty.PassCovariance, cov7: F64, est: Extrinsics,
                  recording: Recording, poses: _Poses, config: CalibConfig, fit: _Fit,
                  rounds: int, scatter: F64) -> dict[str, Any]:
-    g = model.geometry(x)
+    g = model.geometry(x, jacobian=False)
     n = data.index.size
     los, unit, err = g['los'], g['unit'], g['err']
     rng = g['range']

@@ -72,7 +72,8 @@ def n_coefficients(harmonics: int) -> int:
     return 2 * harmonics + 4
 
 
-def profile_basis(aspect_rad: F64, harmonics: int) -> tuple[F64, F64]:
+def profile_basis(aspect_rad: F64, harmonics: int, derivative: bool = True
+                  ) -> tuple[F64, F64 | None]:
     """Basis of the symmetric profile and its derivative over the aspect angle.
 
     Parameters
@@ -80,12 +81,14 @@ def profile_basis(aspect_rad: F64, harmonics: int) -> tuple[F64, F64]:
     aspect_rad : ndarray of shape (n,)
     harmonics : int
         Fourier order K >= 0.
+    derivative : bool
+        False leaves the derivative out (None): a fit's trial steps need only the values.
 
     Returns
     -------
     basis : ndarray of shape (n, 3, 2K + 4)
         ``basis[i] @ coefficients`` is the mean offset (x, y, z) at ``aspect_rad[i]``.
-    d_basis : ndarray of shape (n, 3, 2K + 4)
+    d_basis : ndarray of shape (n, 3, 2K + 4), or None
         Derivative of ``basis`` over the aspect angle [1/rad].
     """
     aspect = np.asarray(aspect_rad, float)
@@ -94,20 +97,22 @@ def profile_basis(aspect_rad: F64, harmonics: int) -> tuple[F64, F64]:
     kal = aspect[:, None] * k[None, :]
     cos_k, sin_k = np.cos(kal), np.sin(kal)
     basis = np.zeros((n, 3, n_coefficients(k_max)))
-    d_basis = np.zeros_like(basis)
     ix, iy, iz = 0, k_max + 1, 2 * k_max + 1
     basis[:, 0, ix] = 1.0
     basis[:, 0, ix + 1:iy] = cos_k
-    d_basis[:, 0, ix + 1:iy] = -k * sin_k
     basis[:, 1, iy:iz] = sin_k
-    d_basis[:, 1, iy:iz] = k * cos_k
     basis[:, 2, iz] = 1.0
     width = np.sin(np.radians(STEP_WIDTH_DEG))
     ca, sa = np.cos(aspect), np.sin(aspect)
     step_x, step_y = np.tanh(ca / width), np.tanh(sa / width)
     basis[:, 0, iz + 1] = step_x
-    d_basis[:, 0, iz + 1] = -sa / width * (1.0 - step_x ** 2)
     basis[:, 1, iz + 2] = step_y
+    if not derivative:
+        return basis, None
+    d_basis = np.zeros_like(basis)
+    d_basis[:, 0, ix + 1:iy] = -k * sin_k
+    d_basis[:, 1, iy:iz] = k * cos_k
+    d_basis[:, 0, iz + 1] = -sa / width * (1.0 - step_x ** 2)
     d_basis[:, 1, iz + 2] = ca / width * (1.0 - step_y ** 2)
     return basis, d_basis
 

@@ -19,7 +19,7 @@ from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import (refine, refine_clock, refine_covariance, refine_diagnostics,
                                   refine_model, refine_noise, refine_targets, reflection,
                                   registration, uncertainty)
-from radar_calib_ros.core.vehicle import box_corners_world
+from radar_calib_ros.core.vehicle import box_corners_world, box_distance
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.types import Extrinsics, Targets, TrackedTargets
@@ -94,6 +94,31 @@ def test_aspect_angle_convention() -> None:
 
 # --- the model ----------------------------------------------------------------------------
 
+def test_the_corridor_in_chunks_keeps_what_it_kept_at_once(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The corridor sees every tracked moving target (millions for an imaging radar) and
+    looks at them a chunk at a time: the same mask as placing them all at once."""
+    scene = make_scene(4, model='interior', n_passes=4)
+    cfg = scene.config
+    index = np.asarray(scene.tracked.target_index, np.int64)
+    poses, times = refine_model._vehicle_poses(scene.recording, index, cfg)
+    start = Extrinsics(scene.initial.rotation, scene.initial.translation_m, 0.03)
+    # all at once, as the corridor did before it was chunked
+    sensor = scene.recording.targets.positions_m[index]
+    pos, yaw, vel, _, _ = times.poses(poses, start.time_offset_s)
+    local = refine_targets._vehicle_frame(start.apply(sensor), pos, yaw)
+    margin = (cfg.refine.gate_m + 2.0 + 0.03 * np.linalg.norm(sensor, axis=1)
+              + np.hypot(vel[:, 0], vel[:, 1])
+              * (cfg.sync.max_time_offset + abs(start.time_offset_s)))
+    expected = times.valid(poses, start.time_offset_s) & (
+        box_distance(local[:, :2], cfg.vehicle) <= margin)
+    assert 0 < expected.sum() < expected.size
+    monkeypatch.setattr(refine_targets, '_CORRIDOR_CHUNK', 997)
+    assert index.size > 3 * 997
+    np.testing.assert_array_equal(
+        refine_targets._corridor(start, index, times, scene.recording, poses, cfg), expected)
+
+
 @pytest.mark.parametrize('range_terms', ['perspective', 'depth', 'full'])
 def test_analytic_jacobian_matches_finite_differences(range_terms: str) -> None:
     # on a grade, so that the pitched car's heights are part of the model checked
@@ -124,8 +149,10 @@ def test_analytic_jacobian_matches_finite_differences(range_terms: str) -> None:
     rng = np.random.default_rng(1)
     x = np.concatenate([[0.0, 0.0, 0.0], rng.normal(0, 0.1, 3), [0.03],
                         rng.normal(0, 0.3, model.n_par - 7)])
-    _, jac, _, _ = model.residuals(x, jac=True)
+    r_jac, jac, _, _ = model.residuals(x, jac=True)
     assert jac is not None
+    # the trial steps' residuals, without the derivatives, are the very same numbers
+    np.testing.assert_array_equal(model.residuals(x, jac=False)[0], r_jac)
     numeric = np.empty_like(jac)
     for k in range(model.n_par):
         step = np.zeros(model.n_par)
