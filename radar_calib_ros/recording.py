@@ -259,6 +259,14 @@ class RecordingBuilder:
         if at_origin.any():
             self.counters['targets_at_origin'] += int(at_origin.sum())
             positions, velocities = positions[~at_origin], velocities[~at_origin]
+        cap = self._config.radar.max_targets_per_frame
+        if 0 < cap < positions.shape[0]:
+            # ``radar.max_targets_per_frame``: evenly over the frame's own list (drivers list
+            # targets by range, azimuth or beam), so each kept one stands for its neighbours
+            # there and a car keeps its share of them; the same targets every time.
+            kept = np.arange(cap) * positions.shape[0] // cap
+            self.counters['targets_thinned'] += positions.shape[0] - cap
+            positions, velocities = positions[kept], velocities[kept]
         self._frame_stamps.append(int(frame.stamp_ns))
         self._frame_positions.append(positions)
         self._frame_velocities.append(velocities)

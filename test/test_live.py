@@ -367,6 +367,20 @@ def test_bad_pointcloud_is_counted_logged_once_and_not_buffered(tmp_path: Path, 
     consistent(live)
 
 
+def test_the_node_thins_each_frame_to_max_targets_per_frame(tmp_path: Path,
+                                                            store: Any) -> None:
+    """``radar.max_targets_per_frame`` holds in the node's buffer as offline (one
+    RecordingBuilder): an evenly spread part of each frame is kept, the rest counted."""
+    positions = np.column_stack([np.arange(10.0, 20.0), np.zeros(10), np.zeros(10)])
+    message = msgs.encode_pointcloud(store, T0_NS, 'radar', positions, np.ones(10))
+    live, _ = make_live(tmp_path, **{'radar.max_targets_per_frame': 4})
+    assert live.on_radar(message)
+    np.testing.assert_array_equal(live._builder._frame_positions[0][:, 0],
+                                  [10.0, 12.0, 15.0, 17.0])
+    assert live._builder.counters['targets_thinned'] == 6
+    consistent(live)
+
+
 def test_nan_targets_are_dropped_and_the_frame_kept(tmp_path: Path, store: Any) -> None:
     """NaN/inf points in a cloud that says it has none (is_dense true) are dropped with a
     warning; in one that says it may (is_dense false: a driver's invalid points, an imaging

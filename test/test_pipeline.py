@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from radar_calib_ros import pipeline
 from radar_calib_ros.config import CalibConfig
@@ -268,6 +269,32 @@ def test_a_clock_offset_fitted_beyond_its_bound_is_noted(drive: Any,
     monkeypatch.setattr(pipeline.refine, 'refine_extrinsics', drifting)
     advice = run_calibration(recording, config).quality.advice
     assert any('+0.420 s' in a and 'beyond sync.max_time_offset (0.25 s)' in a for a in advice)
+
+
+def test_thinning_each_frame_keeps_the_calibration(drive: Any) -> None:
+    """``radar.max_targets_per_frame`` at half of a frame's targets (every second one of
+    each frame, offline as in the node): the same passes and tracks to within one, and the
+    radar within its reported uncertainty of where all the targets put it."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.pipeline import run_calibration
+
+    summary, config = drive
+    full_recording = read_recording(summary.paths.bag, config)
+    per_frame = len(full_recording.targets) / full_recording.frame_stamps_ns.size
+    cap = int(per_frame / 2)
+    thin_config = dataclasses.replace(config, radar=dataclasses.replace(
+        config.radar, max_targets_per_frame=cap))
+    thin_recording = read_recording(summary.paths.bag, thin_config)
+    assert len(thin_recording.targets) < 0.6 * len(full_recording.targets)
+    assert thin_recording.counters['targets_thinned'] > 0
+    full = run_calibration(full_recording, config)
+    thin = run_calibration(thin_recording, thin_config)
+    assert abs(thin.quality.passes - full.quality.passes) <= 1
+    moved = thin.extrinsics.translation_m - full.extrinsics.translation_m
+    assert np.linalg.norm(moved) < full.quality.sigma_translation_m, moved
+    turned = np.degrees(np.linalg.norm(Rotation.from_matrix(
+        thin.extrinsics.rotation @ full.extrinsics.rotation.T).as_rotvec()))
+    assert turned < full.quality.sigma_rotation_deg, turned
 
 
 def test_a_2d_radar_calibrates_with_its_tilt_in_the_uncertainty(drive: Any) -> None:

@@ -37,6 +37,7 @@ def _one_frame(builder: RecordingBuilder) -> None:
 
 def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: float = 50.0,
                    duration_s: float = 20.0, written: Any = None,
+                   config: CalibConfig | None = None,
                    ) -> tuple[RecordingBuilder, LocalFrame, float]:
     """Fixes and odometry of a vehicle on a circle around the local origin's neighbour,
     exact (noise-free), starting at angle 0; returns (builder, frame, angular rate).
@@ -52,7 +53,7 @@ def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: flo
     # the odometry reports yaw against true north: add back the local grid's convergence
     yaw_true = yaw_local + frame.local_convergence_rad(lat, lon)
     heading = yaw_true if written is None else written(yaw_true)
-    builder = RecordingBuilder(CalibConfig())
+    builder = RecordingBuilder(config if config is not None else CalibConfig())
     _one_frame(builder)
     for i, ti in enumerate(t):
         stamp = T0 + int(round(ti * 1e9))
@@ -1065,6 +1066,28 @@ def test_a_small_step_of_the_radar_clock_is_named_and_jitter_is_not() -> None:
     pose_stepped[pose_received >= received[2500]] += 300_000_000
     assert 'radar_stamp_jump_ms' not in receipt_checks(recorder, received, pose_stepped,
                                                        pose_received)
+
+
+def test_max_targets_per_frame_keeps_an_even_spread_of_each_frame() -> None:
+    """``radar.max_targets_per_frame`` (a dense imaging radar) keeps every (n / cap)-th
+    target of a frame over its own list, the same ones every time, and counts the rest;
+    frames within the cap and the default (0) keep all."""
+    positions = np.column_stack([np.arange(1.0, 11.0), np.zeros(10), np.zeros(10)])
+    recordings = []
+    for cap in (4, 0):
+        config = CalibConfig.from_mapping({'radar.max_targets_per_frame': cap})
+        builder, _, _ = circle_builder(config=config)
+        builder.add_radar_frame(RadarFrame(T0 + 10**8, positions, np.arange(10.0)))
+        builder.add_radar_frame(RadarFrame(T0 + 2 * 10**8, positions[:3], np.arange(3.0)))
+        recordings.append(builder.build())
+    thinned, full = recordings
+    assert thinned.counters['targets_thinned'] == 6
+    assert 'targets_thinned' not in full.counters
+    frame = thinned.targets.frame_index == 1
+    np.testing.assert_array_equal(thinned.targets.radial_velocity_mps[frame], [0, 2, 5, 7])
+    np.testing.assert_array_equal(thinned.targets.positions_m[frame, 0], [1, 3, 6, 8])
+    assert (thinned.targets.frame_index == 2).sum() == 3
+    assert (full.targets.frame_index == 1).sum() == 10
 
 
 def test_targets_at_the_radar_origin_are_padding_and_dropped() -> None:
