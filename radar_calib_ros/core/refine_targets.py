@@ -70,8 +70,9 @@ def _track_sizes(track_ids: I64) -> I64:
     out = np.ones(track_ids.size, np.int64)
     has = track_ids >= 0
     if has.any():
-        _, inv, counts = np.unique(track_ids[has], return_inverse=True, return_counts=True)
-        out[has] = counts[inv]
+        # track ids are numbered from 0: counted, not sorted (millions of moving targets)
+        ids = track_ids[has]
+        out[has] = np.bincount(ids)[ids]
     return out
 
 

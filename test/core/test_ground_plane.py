@@ -195,3 +195,16 @@ def test_rain_near_the_radar_does_not_tilt_the_road_plane() -> None:
     assert clutter is None
     np.testing.assert_array_equal(plane.normal,
                                   fit_ground_plane(points[dry], GroundConfig()).normal)
+
+
+def test_unique_track_frame_pairs_are_those_of_numpy_unique() -> None:
+    """The (track, frame time) cells are found by one lexicographic sort: the same rows,
+    order and inverse as ``np.unique(..., axis=0)``, so the per-track sums add up alike."""
+    rng = np.random.default_rng(2)
+    track = rng.integers(0, 30, 5000).astype(float)
+    time_s = np.round(rng.random(5000) * 20.0, 2)
+    pairs, inverse = ground_plane._unique_pairs(track, time_s)
+    expected, expected_inverse = np.unique(np.column_stack([track, time_s]), axis=0,
+                                           return_inverse=True)
+    np.testing.assert_array_equal(pairs, expected)
+    np.testing.assert_array_equal(inverse, expected_inverse.ravel())

@@ -94,6 +94,23 @@ def test_aspect_angle_convention() -> None:
 
 # --- the model ----------------------------------------------------------------------------
 
+def test_frames_and_track_sizes_are_counted_as_unique_would() -> None:
+    """Frame numbers and track sizes of millions of targets are counted, not sorted: the
+    same arrays as ``np.unique``."""
+    rng = np.random.default_rng(5)
+    for values in (rng.integers(0, 50, 1000), np.array([7, 7, 3]), np.zeros(0, np.int64)):
+        unique, inverse = refine_model._small_unique(values, 60)
+        expected, expected_inverse = np.unique(values, return_inverse=True)
+        np.testing.assert_array_equal(unique, expected)
+        np.testing.assert_array_equal(inverse, expected_inverse.ravel())
+    track_ids = np.where(rng.random(1000) < 0.3, -1, rng.integers(0, 40, 1000))
+    _, inv, counts = np.unique(track_ids[track_ids >= 0], return_inverse=True,
+                               return_counts=True)
+    expected = np.ones(track_ids.size, np.int64)
+    expected[track_ids >= 0] = counts[inv.ravel()]
+    np.testing.assert_array_equal(refine_targets._track_sizes(track_ids), expected)
+
+
 def test_the_corridor_in_chunks_keeps_what_it_kept_at_once(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The corridor sees every tracked moving target (millions for an imaging radar) and
