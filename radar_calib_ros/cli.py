@@ -137,7 +137,7 @@ def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | N
     ]
     if vehicle is not None:
         # The data cannot show which point of the vehicle its pose describes: a roof
-        # antenna's pose with a rear axle's vehicle.* put an eleventh probe's radar 1.2 m
+        # antenna's pose with a rear axle's vehicle.* put a thirty-first probe's radar 1.2 m
         # high, inside nothing and unnamed. Said beside the altitude, so that it is read.
         lines.insert(2, f'  reference  pose point {vehicle.ref_height:.2f} m above the road, '
                      f'{vehicle.rear_overhang:.2f} m ahead of the rear bumper '

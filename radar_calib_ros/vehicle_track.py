@@ -1134,7 +1134,7 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
                               np.interp(tu - lag, to, unwrapped) + angle)
         # the arm with a last turn of the velocities, together: where the drive turns
         # more one way than the other, a turn found first takes up part of the arm's
-        # sideways velocity (an eleventh probe: 0.29 deg, and the arm 1.42 m for 1.5)
+        # sideways velocity (a thirty-first probe: 0.29 deg, and the arm 1.42 m for 1.5)
         both = np.concatenate([np.column_stack([-v[:, 1], v[:, 0]])[:, :, None], cols],
                               axis=2)
         normal = np.einsum('nki,nkj->ij', both, both)
@@ -1159,7 +1159,7 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
             # Along the travel only: across it, in a turn, a lag moves the velocity as a
             # lever arm ahead does (by the speed times the lag, for the arm by the yaw rate
             # times its length), and on turns all driven at one speed the two are one.
-            # There the fixes' finite-difference velocities decided, and an eleventh
+            # There the fixes' finite-difference velocities decided, and a thirty-first
             # probe's exactly stamped antenna fixes 1.5 m ahead of a rear-axle Odometry
             # read as a -39 ms lag plus a 0.93 m arm; a braking or speeding up shows the
             # lag alone.
@@ -1189,8 +1189,7 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
             return None
         return float(lags[k] + 0.5 * _FIX_LAG_STEP_S * (cost[k - 1] - cost[k + 1]) / curvature)
 
-    def _arm_at(lag: float, found: tuple[float, float] | None
-                ) -> tuple[float, float] | None:
+    def arm_at(lag: float, found: tuple[float, float] | None) -> tuple[float, float] | None:
         """The lever arm refitted at the lag taken (none: 0), where one was found: it
         moves by the speed times the lag (14 mm per ms at 14 m/s), and the search's lag,
         left untaken under ``_FIX_LAG_MIN_S``, still moved it (-7.6 ms: 0.1 m)."""
@@ -1232,12 +1231,12 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
     along_turn = float(np.sum(acc * perp)) ** 2 / max(float(np.sum(perp ** 2)), 1e-12)
     information = max(float(np.sum(acc ** 2)) - along_turn, 0.0) / correlated
     if information <= 0.0:
-        return FixAgainstOdometry(0.0, _arm_at(0.0, lever_arm))
+        return FixAgainstOdometry(0.0, arm_at(0.0, lever_arm))
     se = math.sqrt(variance / information)
     if abs(lag) < _FIX_LAG_MIN_S or abs(lag) < _FIX_LAG_SIGMAS * se:
         _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms: not taken', 1e3 * lag,
                    1e3 * se)
-        return FixAgainstOdometry(0.0, _arm_at(0.0, lever_arm))
+        return FixAgainstOdometry(0.0, arm_at(0.0, lever_arm))
     _LOG.debug('fix lag against the Odometry %.1f +- %.1f ms', 1e3 * lag, 1e3 * se)
     return FixAgainstOdometry(lag, lever_arm)
 

@@ -511,7 +511,7 @@ def test_progress_off_a_terminal_is_a_line_now_and_then_once_a_run_is_long(
 
 def test_the_summary_says_which_point_of_the_vehicle_the_altitude_rests_on() -> None:
     """A roof antenna's pose with a rear axle's vehicle.* puts the radar metres high and the
-    data cannot show it (an eleventh probe): the summary names the point it assumed."""
+    data cannot show it (a thirty-first probe): the summary names the point it assumed."""
     import dataclasses
 
     from radar_calib_ros.cli import summary_lines

@@ -162,7 +162,7 @@ def test_fixes_of_another_point_than_the_odometrys_are_named_not_taken_for_a_lag
 
 
 def test_a_roof_antennas_fixes_beside_a_rear_axle_odometry_on_turns_at_one_speed() -> None:
-    """An eleventh probe's set-up: fixes of a roof antenna 1.5 m ahead of the rear axle,
+    """A thirty-first probe's set-up: fixes of a roof antenna 1.5 m ahead of the rear axle,
     whose Odometry (pose and twist) they come with, all exactly stamped; every turn driven
     at 14 m/s, most of them to the left, and one stop (at a stop line) between them. Across
     the travel a lag and an arm ahead are one in those turns, and the search had read
