@@ -35,11 +35,8 @@ def _overridden(config: CalibConfig, overrides: tuple[str, ...]) -> CalibConfig:
     """--set KEY=VALUE: an experiment's parameters (YAML values) over the scenario's own."""
     if not overrides:
         return config
-    flat = config.to_flat()
-    for item in overrides:
-        key, _, value = item.partition('=')
-        flat[key] = yaml.safe_load(value)
-    return CalibConfig.from_mapping(flat)
+    return config.replaced({key: yaml.safe_load(value) for key, _, value in
+                            (item.partition('=') for item in overrides)})
 
 
 def run_one(scenario: str, model: str, seed: int, duration: float,

@@ -353,6 +353,11 @@ class CalibConfig:
         """Read a ROS 2 parameters file (``/**: ros__parameters: ...``)."""
         return cls.from_mapping(read_params_file(path, node_name))
 
+    def replaced(self, settings: Mapping[str, Any]) -> CalibConfig:
+        """This configuration with ``settings`` (dotted names) over its values, validated
+        as a parameters file is."""
+        return CalibConfig.from_mapping({**self.to_flat(), **settings})
+
     def to_flat(self) -> dict[str, Any]:
         """Every parameter as ``{dotted_name: value}`` (what the node declares)."""
         out: dict[str, Any] = {}

@@ -1040,7 +1040,4 @@ def _encode_samples(builder: RecordingBuilder, config: CalibConfig,
 def replace_config(config: CalibConfig, **sections: Any) -> CalibConfig:
     """``dataclasses.replace`` on sections by dotted names, for tests and the node:
     ``replace_config(cfg, **{'buffer.max_duration': 60.0})``."""
-    flat = config.to_flat()
-    for name, value in sections.items():
-        flat[name] = value
-    return CalibConfig.from_mapping(flat)
+    return config.replaced(sections)

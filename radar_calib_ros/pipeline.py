@@ -187,7 +187,7 @@ def _sparse_radar_config(recording: Recording, tracked: TrackedTargets,
     settings = _sparse_radar_settings(config)
     if all(config.get(name) == value for name, value in settings.items()):
         return None
-    return CalibConfig.from_mapping({**config.to_flat(), **settings}), median
+    return config.replaced(settings), median
 
 
 def _ground_plane(recording: Recording, tracked: TrackedTargets,
