@@ -102,7 +102,7 @@ from radar_calib_ros.core.refine_noise import (_azimuth_noise_deg, _elevation_no
                                                _noisy_azimuth, _noisy_elevation, _scatter)
 from radar_calib_ros.core.refine_targets import (_MIN_PASS_TARGETS, _MIN_TARGETS, _corridor,
                                                  _gate, _in_passes, _occluded, _select,
-                                                 _track_sizes)
+                                                 _track_sizes, with_static_targets)
 from radar_calib_ros.core.vehicle import box_limits
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
@@ -209,6 +209,7 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
     # memory-bound, and multi-threaded BLAS only spins on a busy machine (measured 10x
     # slower with 2 cores shared). One thread is as fast when idle and far faster when not.
     with threadpool_limits(limits=1, user_api='blas'):
+        tracked = with_static_targets(initial, recording, tracked, config)
         start_sigma = _START_SIGMA_M
         held_note: _Diverged | None = None
         try:

@@ -1589,3 +1589,85 @@ def test_the_start_uncertainty_counts_only_where_the_data_leave_the_position_to_
     length = config.vehicle.length
     assert term[3, 3] == pytest.approx(length ** 2 - refine_model._START_SIGMA_M ** 2, rel=1e-6)
     assert term[4, 4] < 1e-6 and np.allclose(term[[0, 1, 2, 5, 6, 7]], 0.0)
+
+
+def test_the_vehicles_targets_inside_its_box_are_kept_from_a_track_it_shares(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two cars alongside the vehicle in its first pass (0.6 m gaps) share one track with it:
+    mostly theirs, the track rule refuses it. The vehicle's targets inside its footprint
+    are still fitted; the neighbours' never."""
+    monkeypatch.setattr(refine_targets, '_OCCLUDER_TARGETS', 10 ** 9)  # the gate alone
+    scene = make_scene(11, model='interior', geometry='diverse')
+    width = scene.config.vehicle.width
+    left, copies_l = _with_first_pass_copies(scene, 0.0, width + 0.6)
+    both, copies_r = _with_first_pass_copies(left, 0.0, -(width + 0.6))
+    first = scene.vehicle_target_index[scene.pass_of_target[scene.vehicle_target_index] == 0]
+    shared = np.concatenate([first, copies_l, copies_r])
+    track_id = both.tracked.track_id.copy()
+    track_id[np.isin(both.tracked.target_index, shared)] = track_id.max() + 1
+    both = dataclasses.replace(both, tracked=TrackedTargets(both.tracked.target_index,
+                                                            track_id))
+    ref = _run(both)
+    used = ref.diagnostics['residuals']['target_index']
+    # (a few of theirs land inside the vehicle's box through the radar's noise)
+    assert np.isin(np.concatenate([copies_l, copies_r]), used).mean() < 0.01
+    truth_local = refine_targets._vehicle_frame(
+        scene.truth.apply(scene.recording.targets.positions_m[first]),
+        *refine_model._Times.of(scene.recording, first, 0.0,
+                                int(scene.recording.vehicle.stamps_ns[0])).poses(
+            refine_model._Poses.from_track(scene.recording.vehicle,
+                                           int(scene.recording.vehicle.stamps_ns[0]),
+                                           scene.config.sync.max_pose_gap),
+            scene.truth.time_offset_s)[:2])
+    inside = first[box_distance(truth_local[:, :2], scene.config.vehicle) == 0.0]
+    assert inside.size > 100
+    assert np.isin(inside, used).mean() > 0.6
+    assert errors(ref.extrinsics, scene.truth)['horizontal'] < 0.1
+
+
+def test_the_vehicles_targets_stage_1_took_for_static_are_fitted_while_it_moves() -> None:
+    """Where the line of sight stands square to the car's travel its targets' v_r is near
+    zero, and a moving filter at the radar's noise floor drops them (here 1 m/s): the
+    final fit takes them back, judged by their radial velocity, while static clutter along
+    the lane beside the car stays out except where the car's own v_r is near zero too."""
+    cfg = CalibConfig()
+    cfg = dataclasses.replace(cfg, moving=dataclasses.replace(cfg.moving, min_speed_kmh=3.6,
+                                                              noise_factor=0.0))
+    scene = make_scene(11, model='interior', geometry='diverse', config=cfg)
+    rec = scene.recording
+    # clutter: five static points beside every frame's vehicle, 1 m off its left side
+    t0 = int(rec.vehicle.stamps_ns[0])
+    poses = refine_model._Poses.from_track(rec.vehicle, t0, cfg.sync.max_pose_gap)
+    frames = np.unique(rec.targets.frame_index[scene.vehicle_target_index])
+    frame_t = (rec.frame_stamps_ns[frames] - t0) * 1e-9 + scene.truth.time_offset_s
+    pos, yaw, _, _, _ = poses.at(frame_t)
+    along = np.linspace(-2.0, 2.0, 5)
+    side = 0.5 * cfg.vehicle.width + 1.0
+    wx = pos[:, None, 0] + np.cos(yaw)[:, None] * along - np.sin(yaw)[:, None] * side
+    wy = pos[:, None, 1] + np.sin(yaw)[:, None] * along + np.cos(yaw)[:, None] * side
+    wz = np.repeat(pos[:, 2:3] - cfg.vehicle.ref_height + 0.3, along.size, axis=1)
+    world = np.column_stack([wx.ravel(), wy.ravel(), wz.ravel()])
+    targets = Targets(np.vstack([rec.targets.positions_m, scene.truth.inverse_apply(world)]),
+                      np.concatenate([rec.targets.radial_velocity_mps, np.zeros(len(world))]),
+                      np.concatenate([rec.targets.frame_index, np.repeat(frames, along.size)]))
+    clutter = np.arange(len(rec.targets), len(targets))
+    rec = dataclasses.replace(rec, targets=targets)
+    slow = np.abs(targets.radial_velocity_mps) < 1.0
+    vehicle_slow = scene.vehicle_target_index[slow[scene.vehicle_target_index]]
+    assert vehicle_slow.size > 100
+    kept = ~np.isin(scene.tracked.target_index, vehicle_slow)
+    tracked = TrackedTargets(scene.tracked.target_index[kept], scene.tracked.track_id[kept])
+
+    added = refine_targets.with_static_targets(scene.initial, rec, tracked, cfg)
+    readmitted = added.target_index[added.track_id == refine_targets.STATIC_TRACK]
+    assert np.isin(vehicle_slow, readmitted).mean() > 0.95
+    assert np.all(np.diff(added.target_index) > 0)
+
+    ref = refine.refine_extrinsics(scene.initial, rec, tracked, scene.selection, cfg)
+    used = ref.diagnostics['residuals']['target_index']
+    # as often as the vehicle's other targets (a fifth of which the wheels' micro-Doppler
+    # and the gate leave out everywhere)
+    others = np.setdiff1d(scene.vehicle_target_index, vehicle_slow)
+    assert np.isin(vehicle_slow, used).mean() > 0.6 * np.isin(others, used).mean()
+    assert np.isin(clutter, used).mean() < 0.1
+    assert errors(ref.extrinsics, scene.truth)['horizontal'] < 0.1
