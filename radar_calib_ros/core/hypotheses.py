@@ -13,6 +13,7 @@ Method paper, section "Hypothesis Generation and Filtering".
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -21,6 +22,7 @@ from sklearn.cluster import DBSCAN
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import registration
+from radar_calib_ros.core.uncertainty import compass_name
 from radar_calib_ros.core.vehicle import box_limits, vehicle_to_world, world_to_vehicle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
@@ -695,8 +697,10 @@ def _no_cluster_reason(clusters: Sequence[_Cluster], hyps: Sequence[Hypothesis],
     credible = [c for c in fitting if c.n_passes >= 2 and _follows_vehicle(*views[c.label])]
     if credible:
         seen = max(credible, key=lambda c: (c.n_passes, -c.mean_angle_deg))
+        assert seen.fit is not None
         return (f'calibration vehicle seen in {_n_passes(seen.n_passes)}, need at least '
-                f'{cfg.min_passes}')
+                f'{cfg.min_passes}' + _missed_drives([hyp_tracks[i] for i in seen.core],
+                                                     seen.fit, tracks, recording, config))
     if widest.n_passes < 2:
         return (f'no consistent calibration-vehicle track: none of the {n_hyps} hypotheses '
                 'agrees with one from another pass (a single pass fits any road user\'s '
@@ -707,6 +711,32 @@ def _no_cluster_reason(clusters: Sequence[_Cluster], hyps: Sequence[Hypothesis],
             f'{widest.core.size} track{"s" if widest.core.size != 1 else ""} in '
             f'{_n_passes(widest.n_passes)}, would have had the vehicle in view in '
             f'{_n_passes(in_view)} and follows it in {followed})')
+
+
+def _missed_drives(group: Sequence[SmoothedTrack], fit: registration.RigidFit,
+                   tracks: Sequence[SmoothedTrack], recording: Recording,
+                   config: CalibConfig) -> str:
+    """What a refusal for too few passes adds: the drives the passes seen put the vehicle in
+    view on that no track followed, by time and heading, so the crew knows which to repeat
+    (an empty string when there are none)."""
+    passes, followed = _view_passes(group, fit, tracks, recording, config)
+    missed = passes[~followed]
+    if missed.shape[0] == 0:
+        return ''
+    vehicle = recording.vehicle
+    t0 = int(vehicle.stamps_ns[0])
+    when = []
+    for start, end in missed:
+        during = (vehicle.stamps_ns >= start) & (vehicle.stamps_ns <= end)
+        vel = vehicle.velocities_mps[during]
+        heading = math.atan2(float(vel[:, 1].sum()), float(vel[:, 0].sum()))
+        when.append(f'{(start - t0) * 1e-9:.0f}-{(end - t0) * 1e-9:.0f} s '
+                    f'{compass_name(heading)}bound')
+    return (f'; where those passes put the radar, the vehicle also drove through its view at '
+            f'{", ".join(when)} (from its first pose), and no track followed it there: hidden '
+            'behind other traffic, below the vertical view (a tight turn close to the pole), '
+            'or too far; drive those again clear of traffic, or more drives well inside the '
+            'view')
 
 
 #: Below this speed the vehicle gives too few moving targets to be tracked [m/s].
@@ -764,9 +794,18 @@ def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidF
     recording : Recording
     config : CalibConfig
     """
+    passes, followed = _view_passes(group, fit, tracks, recording, config)
+    return int(passes.shape[0]), int(followed.sum())
+
+
+def _view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidFit,
+                 tracks: Sequence[SmoothedTrack], recording: Recording,
+                 config: CalibConfig) -> tuple[I64, np.ndarray]:
+    """(k, 2) pose-clock spans [ns] of the passes :func:`vehicle_view_passes` counts, and
+    (k,) whether one of the group's tracks follows each."""
     vehicle = recording.vehicle
     if not group or len(vehicle) < 2:
-        return 0, 0
+        return np.zeros((0, 2), np.int64), np.zeros(0, bool)
     poses = PoseSamples(vehicle.positions_m, vehicle.yaw_rad, vehicle.velocities_mps,
                         vehicle.yaw_rate_rps, np.ones(len(vehicle), bool))
     centre = reflection_centre_world(poses, config)[:, :2]
@@ -785,7 +824,7 @@ def vehicle_view_passes(group: Sequence[SmoothedTrack], fit: registration.RigidF
     spans = pose_stamps_ns(spans, config.sync.time_offset)
     followed = ((spans[None, :, 0] <= passes[:, None, 1])
                 & (spans[None, :, 1] >= passes[:, None, 0])).any(axis=1)
-    return int(passes.shape[0]), int(followed.sum())
+    return passes, followed
 
 
 #: A track point keeps the vehicle company under a calibration when it lies within this of

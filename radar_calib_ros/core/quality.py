@@ -135,8 +135,10 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
                       f'{rigid_misfit:.1f} m of those that move with it, so vehicle.* look '
                       'right. The final fit uses only targets that move with the vehicle.')
     if unused:
+        box_named = math.isfinite(misfit) and (misfit > _BOX_MISFIT_M or (
+            misfit > _BOX_MISFIT_NOTE_M and paper.inlier_ratio <= _BOX_MISFIT_NOTE_INSIDE))
         advice.append(_unused_drives_advice(
-            unused, len(drives), [d for d in drives if d not in unused]))
+            unused, len(drives), [d for d in drives if d not in unused], box_named))
     extra = {
         'sigma_source': source,
         'vehicle_targets': paper.n_targets,
@@ -380,9 +382,16 @@ def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
         advice.append(f'The vehicle targets outside its box lie {misfit_m:.1f} m from it on '
                       f'average ({100 * inlier_ratio:.0f} % inside; 0.2-0.4 m where '
                       'vehicle.* describe the vehicle): check vehicle.length, width and '
-                      'rear_overhang (a larger vehicle than configured?) and the clock offset '
-                      '(sync.time_offset).' + open_along
-                      + (' The position\'s uncertainty includes half that distance.'
+                      'rear_overhang (a larger vehicle than configured, or the reference '
+                      'point placed wrong along it?) and the clock offset (sync.time_offset).'
+                      + open_along
+                      # said with the widened figures: the drive advice before it quotes
+                      # the drives' part alone (a thirty-second probe: 17 cm there, 0.87 m
+                      # reported)
+                      + (f' The position\'s uncertainty includes half that distance: '
+                         f'{sigma["along"]:.2f} m along the boresight and '
+                         f'{sigma["across"]:.2f} m across it (1 sigma), beyond what the '
+                         'drives alone do.'
                          if misfit_m > _BOX_MISFIT_M else ''))
     return advice
 
@@ -535,7 +544,7 @@ def unused_drives(drives: list[Drive]) -> list[Drive]:
 
 
 def _unused_drives_advice(unused: list[Drive], n_drives: int,
-                          used: list[Drive] | None = None) -> str:
+                          used: list[Drive] | None = None, box_named: bool = False) -> str:
     def when(drives: list[Drive]) -> str:
         return ', '.join(f'{d.start_s:.0f}-{d.end_s:.0f} s '
                          f'{uncertainty.compass_name(d.heading_rad)}bound' for d in drives)
@@ -556,11 +565,15 @@ def _unused_drives_advice(unused: list[Drive], n_drives: int,
             reasons[-1] += ';'
     if mixed:
         # not only traffic: a side-fire radar's near lane, half below its vertical view, was
-        # blamed on road users when none was within 15 m (an eleventh probe)
+        # blamed on road users when none was within 15 m (an eleventh probe); and with the
+        # box named as wrong, that comes first: it misplaces a drive's targets as a whole (a
+        # thirty-second probe's rear_overhang taken from the front bumper lost two drives,
+        # blamed on traffic)
+        box = 'vehicle.* not describing the vehicle, as said above; or ' if box_named else ''
         reasons.append('the radar saw targets moving with the vehicle, but the fit left them '
-                       'out (other road users queued or alongside that could not be told '
-                       'apart, or the vehicle cut by the edge of the view, below or beside it) '
-                       f'at {when(mixed)}')
+                       f'out ({box}other road users queued or alongside that could not be '
+                       'told apart, or the vehicle cut by the edge of the view, below or '
+                       f'beside it) at {when(mixed)}')
         moved = _mount_moved_between(mixed, used or [])
         if moved:
             # A re-aimed radar (or a slipped bracket) puts every drive on the far side of

@@ -1,6 +1,7 @@
 """Stage 6: hypotheses per track, the cluster filter, passes, and the exit-1 cases."""
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -414,3 +415,26 @@ def test_a_long_vehicle_of_flat_panels_is_fitted_at_its_nearest_point() -> None:
     assert np.linalg.norm(fit.translation_m[:2]) < 0.1
     car = hypotheses.facing_radar(corr(nearest), CalibConfig(), keep_better=True).target_m
     assert np.linalg.norm(registration.fit_yaw_translation(nearest, car).translation_m[:2]) > 0.5
+
+
+def test_too_few_passes_names_the_drives_in_view_no_track_followed() -> None:
+    # three drives through the view, the last one lost (hidden, below the view): the
+    # refusal says when it was and which way the vehicle went, so it can be driven again
+    scene = make_scene(n_passes=3)
+    vehicle = [t for t in scene.tracks if t.track_id in scene.vehicle_track_ids]
+    last = max(vehicle, key=lambda t: t.stamps_ns[0])
+    kept = tuple(t for t in scene.tracks if t is not last)
+    hyps = hypotheses.generate_hypotheses(kept, scene.recording, scene.ground, scene.config)
+    with pytest.raises(InsufficientDataError, match='seen in 2 passes') as err:
+        hypotheses.prune_hypotheses(hyps, kept, scene.recording, scene.ground, scene.config)
+    message = str(err.value)
+    assert 'no track followed it there' in message
+    spans = [tuple(map(float, m)) for m in re.findall(r'(\d+)-(\d+) s [\w-]+bound', message)]
+    assert len(spans) == 1
+    t0 = int(scene.recording.vehicle.stamps_ns[0])
+    lost = ((last.stamps_ns[0] - t0) * 1e-9, (last.stamps_ns[-1] - t0) * 1e-9)
+    assert spans[0][0] <= lost[1] and spans[0][1] >= lost[0]
+    # all drives followed: nothing added
+    with pytest.raises(InsufficientDataError) as err:
+        _select(make_scene(n_passes=2, split_pass=0))
+    assert 'no track followed' not in str(err.value)

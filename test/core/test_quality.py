@@ -189,6 +189,10 @@ def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None
     mixed = quality._unused_drives_advice(unused, 5)
     assert 'saw targets moving with the vehicle, but the fit left them out' in mixed
     assert 'could not be told apart' in mixed and 'edge of the view' in mixed
+    assert 'vehicle.*' not in mixed
+    # where the box was named as wrong (above the drives in the advice), that comes first
+    boxed = quality._unused_drives_advice(unused, 5, box_named=True)
+    assert 'left them out (vehicle.* not describing the vehicle' in boxed
     # a radar that fell silent through that drive (a reboot): no scans, not no vehicle
     window = (rec.frame_stamps_ns >= rec.vehicle.stamps_ns[0] + lost_from * 1e9 - 1e9) & (
         rec.frame_stamps_ns <= rec.vehicle.stamps_ns[0] + lost_to * 1e9 + 1e9)
@@ -223,7 +227,9 @@ def test_a_box_far_off_the_vehicle_is_named_but_faces_only_reflections_are_not()
     named = [a for a in van if 'vehicle.length' in a]
     assert len(named) == 1 and '0.8 m from it' in named[0]
     assert 'uncertainty includes' not in named[0]
-    assert any('uncertainty includes half' in a for a in far)
+    # with the widened figures, not the drives' alone that the advice before it quotes
+    assert any('uncertainty includes half that distance: 0.03 m along the boresight and '
+               '0.02 m across' in a for a in far)
     # as far outside but most targets inside: not named
     inside = quality._advice(8, [0.0, 180.0], sigma, 0.6, 0.84, False, CalibConfig())
     assert not any('vehicle.length' in a for a in inside)
