@@ -178,7 +178,8 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
         unknown within ``sync.max_time_offset``).
     recording : Recording
     tracked : TrackedTargets
-        Moving targets with track ids; seeds the selection (stationary targets never count).
+        Moving targets with track ids; seeds the selection. The targets stage 1 took for
+        static are added near the vehicle while it moves (``with_static_targets``).
     selection : HypothesisSelection
         Its accepted tracks are always admitted to the gate.
     config : CalibConfig

@@ -5,7 +5,9 @@ The gate keeps the targets the current estimate puts on or near the vehicle's bo
 and one by one (``_gate``); it leaves out frames where another road user hides the vehicle
 (``_occluded``) or the edge of the view cuts it (``_box_inside_view``), and targets whose
 radial velocity does not follow the vehicle's rigid motion (``_velocity_consistent``), and
-keeps only runs of targets that make a pass (``_in_passes``). ``_select`` then prepares the
+keeps only runs of targets that make a pass (``_in_passes``). Before the rounds, the
+targets stage 1 took for static are added near the moving vehicle (``with_static_targets``):
+a slow car's broadside strip. ``_select`` then prepares the
 chosen targets for a fit: positions freed of the angular noise's bias (and lifted out of a
 2-D radar's plane), information weights per (position, aspect) cell, pass ids, and the
 whitening of each target's position by the radar's noise and the reflectors' scatter.
