@@ -359,10 +359,14 @@ def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
         spread = np.degrees(np.abs((h - mean + np.pi) % (2 * np.pi) - np.pi)).max()
         if spread <= _ONE_DIRECTION_DEG:
             bound = uncertainty.compass_name(math.radians(90.0) - mean)
+            # said as one with the drives the uncertainty names before it, which may be
+            # that direction again on another lane (a thirty-second probe read 'drive
+            # eastbound again' and 'also drive the opposite direction' as a contradiction)
             advice.append(f'All {len(headings_deg)} passes drove in one direction ({bound}, '
-                          f'heading {math.degrees(mean) % 360:.0f} deg from north); also '
-                          'drive the opposite direction and other lanes, so the car is seen '
-                          'from its other sides.')
+                          f'heading {math.degrees(mean) % 360:.0f} deg from north), so only '
+                          'some sides of the car were seen; besides any drive named above, '
+                          'drive the opposite direction too (where the road allows) and '
+                          'other lanes, so its other sides are seen as well.')
     along = sigma['along']
     if bootstrap and math.isfinite(along) and along > config.quality.max_boresight_sigma_m:
         advice.append(f'The position along the boresight is uncertain (1-sigma {along:.2f} '

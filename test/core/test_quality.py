@@ -286,6 +286,8 @@ def test_one_direction_is_named_as_a_compass_heading() -> None:
              'rotation_deg': 0.2}
     advice = quality._advice(6, [95.0] * 6, sigma, 0.7, 0.3, False, CalibConfig())
     assert any('one direction (east, heading 95 deg from north)' in a for a in advice)
+    assert any('besides any drive named above, drive the opposite direction too' in a
+               for a in advice)
 
 
 def test_a_box_misfit_names_the_open_position_along_the_boresight_too() -> None:
