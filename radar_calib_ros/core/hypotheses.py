@@ -22,7 +22,7 @@ from sklearn.cluster import DBSCAN
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import registration
-from radar_calib_ros.core.uncertainty import compass_name
+from radar_calib_ros.core.uncertainty import drive_name
 from radar_calib_ros.core.vehicle import box_limits, vehicle_to_world, world_to_vehicle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
@@ -725,18 +725,22 @@ def _missed_drives(group: Sequence[SmoothedTrack], fit: registration.RigidFit,
         return ''
     vehicle = recording.vehicle
     t0 = int(vehicle.stamps_ns[0])
-    when = []
-    for start, end in missed:
-        during = (vehicle.stamps_ns >= start) & (vehicle.stamps_ns <= end)
-        vel = vehicle.velocities_mps[during]
-        heading = math.atan2(float(vel[:, 1].sum()), float(vel[:, 0].sum()))
-        when.append(f'{(start - t0) * 1e-9:.0f}-{(end - t0) * 1e-9:.0f} s '
-                    f'{compass_name(heading)}bound')
+    when = ', '.join(drive_name((start - t0) * 1e-9, (end - t0) * 1e-9,
+                                drive_heading_rad(vehicle, start, end))
+                     for start, end in missed)
     return (f'; where those passes put the radar, the vehicle also drove through its view at '
-            f'{", ".join(when)} (from its first pose), and no track followed it there: hidden '
+            f'{when} (from its first pose), and no track followed it there: hidden '
             'behind other traffic, below the vertical view (a tight turn close to the pole), '
             'or too far; drive those again clear of traffic, or more drives well inside the '
             'view')
+
+
+def drive_heading_rad(vehicle: VehicleTrack, start_ns: int, end_ns: int) -> float:
+    """ENU heading of the vehicle's mean velocity between two pose stamps (a drive's
+    direction, whatever it turned on the way)."""
+    during = (vehicle.stamps_ns >= start_ns) & (vehicle.stamps_ns <= end_ns)
+    vel = vehicle.velocities_mps[during]
+    return math.atan2(float(vel[:, 1].sum()), float(vel[:, 0].sum()))
 
 
 #: Below this speed the vehicle gives too few moving targets to be tracked [m/s].

@@ -135,10 +135,9 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
                       f'{rigid_misfit:.1f} m of those that move with it, so vehicle.* look '
                       'right. The final fit uses only targets that move with the vehicle.')
     if unused:
-        box_named = math.isfinite(misfit) and (misfit > _BOX_MISFIT_M or (
-            misfit > _BOX_MISFIT_NOTE_M and paper.inlier_ratio <= _BOX_MISFIT_NOTE_INSIDE))
         advice.append(_unused_drives_advice(
-            unused, len(drives), [d for d in drives if d not in unused], box_named))
+            unused, len(drives), [d for d in drives if d not in unused],
+            _box_named(misfit, paper.inlier_ratio)))
     extra = {
         'sigma_source': source,
         'vehicle_targets': paper.n_targets,
@@ -342,6 +341,12 @@ def _pass_headings_deg(targets: polygon.VehicleTargets, pass_intervals_ns: I64) 
     return [float(v) for v in (90.0 - np.degrees(np.arctan2(s[seen], c[seen]))) % 360.0]
 
 
+def _box_named(misfit_m: float, inlier_ratio: float) -> bool:
+    """Whether the advice names vehicle.* (the box) as not describing the vehicle."""
+    return math.isfinite(misfit_m) and (misfit_m > _BOX_MISFIT_M or (
+        misfit_m > _BOX_MISFIT_NOTE_M and inlier_ratio <= _BOX_MISFIT_NOTE_INSIDE))
+
+
 def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
             inlier_ratio: float, misfit_m: float, bootstrap: bool,
             config: CalibConfig) -> list[str]:
@@ -373,8 +378,7 @@ def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
                       f'm > {config.quality.max_boresight_sigma_m:g} m); drive across the '
                       'view (lanes crossing the boresight, turns) rather than only towards '
                       'and away from the radar.')
-    if math.isfinite(misfit_m) and (misfit_m > _BOX_MISFIT_M or (
-            misfit_m > _BOX_MISFIT_NOTE_M and inlier_ratio <= _BOX_MISFIT_NOTE_INSIDE)):
+    if _box_named(misfit_m, inlier_ratio):
         # where the drives leave the position along the boresight open, a radar misplaced
         # along it misplaces the box as much (a twenty-second probe: 3.5 % of the targets
         # inside at the estimate, 42 % at the truth, vehicle.* right)
@@ -522,11 +526,9 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     t0 = int(vehicle.stamps_ns[0])
     drives = []
     for (start, end), n, share, k in zip(passes, n_fitted, seen_share, n_scans):
-        during = (vehicle.stamps_ns >= start) & (vehicle.stamps_ns <= end)
-        vel = vehicle.velocities_mps[during]
         expected = (end - start) / scan_interval_ns if scan_interval_ns > 0 else 0.0
         drives.append(Drive((start - t0) * 1e-9, (end - t0) * 1e-9,
-                            math.atan2(float(vel[:, 1].sum()), float(vel[:, 0].sum())),
+                            hypotheses.drive_heading_rad(vehicle, start, end),
                             int(n), float(share),
                             min(1.0, k / expected) if expected >= 1.0 else 1.0))
     return drives
@@ -550,8 +552,8 @@ def unused_drives(drives: list[Drive]) -> list[Drive]:
 def _unused_drives_advice(unused: list[Drive], n_drives: int,
                           used: list[Drive] | None = None, box_named: bool = False) -> str:
     def when(drives: list[Drive]) -> str:
-        return ', '.join(f'{d.start_s:.0f}-{d.end_s:.0f} s '
-                         f'{uncertainty.compass_name(d.heading_rad)}bound' for d in drives)
+        return ', '.join(uncertainty.drive_name(d.start_s, d.end_s, d.heading_rad)
+                         for d in drives)
     silent = [d for d in unused if d.scan_share < _SILENT_SCAN_SHARE]
     scanned = [d for d in unused if d.scan_share >= _SILENT_SCAN_SHARE]
     unseen = [d for d in scanned if not d.seen_share >= _SEEN_DRIVE_SHARE]

@@ -234,8 +234,10 @@ def _gate(est: Extrinsics, candidates: I64, track_ids: I64, track_size: I64,
         # the other's, and are left out. Measured on the simulator's ten-minute runs: the
         # horizontal median 6.7 / 5.5 / 5.7 -> 5.9 / 5.0 / 5.6 cm (interior / mixed / skin),
         # the rotation median 0.160 / 0.108 / 0.202 -> 0.129 / 0.094 / 0.179 deg.
-        inside_box = dist[has_track] <= 0.0
-        keep[has_track] &= track_ok[inv] | (inside_box & (not first_round))
+        ok = track_ok[inv]
+        if not first_round:
+            ok |= dist[has_track] <= 0.0
+        keep[has_track] &= ok
     inside = keep & _box_inside_view(pos, yaw, est, view, config)
     # A narrow view (a long-range radar's +-9 deg) may rarely hold the whole car: then the
     # cut views are all there is, and losing most of the data would cost more than the cut.

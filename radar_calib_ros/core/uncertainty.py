@@ -304,6 +304,12 @@ def compass_name(enu_angle_rad: float) -> str:
     return _COMPASS[int(((compass_deg + 22.5) % 360.0) // 45.0)]
 
 
+def drive_name(start_s: float, end_s: float, heading_rad: float) -> str:
+    """'120-131 s north-eastbound': a drive as the advice names it (seconds from the first
+    pose)."""
+    return f'{start_s:.0f}-{end_s:.0f} s {compass_name(heading_rad)}bound'
+
+
 def aspect_name(aspect_rad: float) -> str:
     """'front', 'left side', ... of an aspect angle (0 = front, +pi/2 = left)."""
     return _SIDES[int(((math.degrees(aspect_rad) + 22.5) % 360.0) // 45.0)]
