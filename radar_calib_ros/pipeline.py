@@ -499,12 +499,15 @@ def _odometry_late_note(recording: Recording, fitted_offset_s: float) -> str | N
     if not (abs(fitted_offset_s + lag_s) <= agree_s and abs(fitted_offset_s) > _SHIFT_CONFIRMED_S):
         return None
     late_ms = -1000.0 * lag_s
-    how = (f'lag both by {late_ms:.0f} ms (seen where the vehicle turned or changed speed): '
-           'most likely the Odometry is stamped late (at output, or on a clock of its own)'
+    # (seconds: a stream offset, ``fix_stream_offset_ds``, of GPS against UTC time)
+    late = f'{abs(late_ms):.0f} ms' if abs(late_ms) < 1000.0 else f'{abs(lag_s):.1f} s'
+    how = (f'lag both by {late} (seen where the vehicle turned or changed speed): '
+           'most likely the Odometry is stamped late (at output, on a clock of its own, or '
+           'in another time scale: GPS and UTC differ by 18 s)'
            if late_ms > 0 else
-           f'run {-late_ms:.0f} ms ahead of both (seen where the vehicle turned or changed '
+           f'run {late} ahead of both (seen where the vehicle turned or changed '
            'speed): the Odometry stamped early, or the fixes and the radar both stamped late '
-           '(at output)')
+           '(at output, or in another time scale: GPS and UTC differ by 18 s)')
     return (f'The radar\'s stamps agree with the NavSatFix\'s as stamped, and the '
             f'Odometry\'s {how}. The poses were put on the '
             f'Odometry\'s clock, so the clock offset reported ({fitted_offset_s:+.3f} s) is the '
@@ -537,7 +540,13 @@ def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
     # with a jump, the offset is a blend of before and after: the jump is the news; an
     # offset that sync.time_offset already takes out is no news either
     left_s = (offset_ms or 0) / 1000 + config.sync.time_offset
-    if offset_ms is not None and jump_ms is None and abs(left_s) > _RECEIPT_NOTE_S:
+    # nor one that puts the radar on the fixes' clock where those were seconds off the
+    # Odometry's and moved onto it: the stage-6 shift finds that, and the late-Odometry
+    # note says it (``_odometry_late_note``)
+    on_fix_clock = (counters.get('fix_stream_offset_ds') is not None and offset_ms is not None
+                    and abs(offset_ms - counters.get('fix_lag_ms', 0)) <= 1000 * _RECEIPT_NOTE_S)
+    if (offset_ms is not None and jump_ms is None and abs(left_s) > _RECEIPT_NOTE_S
+            and not on_fix_clock):
         setting = (f'; sync.time_offset ({config.sync.time_offset:g} s) leaves {left_s:+.1f} s'
                    if config.sync.time_offset else '')
         notes.append(f'As the recording received them, the radar\'s header stamps are '
@@ -589,6 +598,14 @@ def _outside_poses_notes(recording: Recording, config: CalibConfig,
         k = int(np.argmax(gaps))
         note += (f'; the radar\'s stamps jump by {gaps[k]:.1f} s after '
                  f'{stamps[k] * 1e-9:.3f} s (a clock that lost its sync?)')
+    dropped = sum(recording.counters.get(key, 0) for key in (
+        'fixes_silent_float_dropped', 'odometry_silent_float_dropped', 'fixes_degraded_dropped'))
+    if dropped:
+        # the tool's own cut of the pose stream, not the radar's clock (a thirty-third
+        # probe: frames outside the fixes taken for RTK float were blamed on time sync)
+        return [note + ': the poses left out above (RTK float or a lost solution) took '
+                'them along. Only if the vehicle\'s recording itself ends before the radar\'s, '
+                'check the radar\'s time synchronisation and sync.time_offset.']
     return [note + '. Check the radar\'s time synchronisation and sync.time_offset.']
 
 
@@ -818,6 +835,12 @@ def _data_notes(recording: Recording, corrections: list[str],
             else None)
     if late is not None:
         notes.append(late)
+    elif recording.counters.get('fix_stream_offset_ds'):
+        notes.append(f'The NavSatFix stamps lie {lag_ms / 1000:+.1f} s from the Odometry\'s '
+                     '(seen in the vehicle\'s stops and starts): the fixes were put on the '
+                     'Odometry\'s clock, which the radar\'s agrees with. A whole number of '
+                     'seconds is most often one stream in GPS time and the other in UTC (18 '
+                     's apart): check how the GNSS driver stamps its fixes.')
     elif lag_ms:
         notes.append(f'The NavSatFix stamps lag the Odometry\'s by {lag_ms} ms (seen where the '
                      'vehicle turned or changed speed): each fix was taken at its stamp minus '

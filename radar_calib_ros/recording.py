@@ -531,12 +531,16 @@ class RecordingBuilder:
 
     def _judging_pose_receipts(self) -> tuple[I64, I64]:
         """(lag, received) of the pose messages the radar's stamps are judged by: the fixes'
-        where there are any (the poses' positions come from them), else the Odometry's."""
+        where there are any (the poses' positions come from them), else the Odometry's; the
+        Odometry's too where the fixes' stamps were found seconds off its own and moved onto
+        its clock (``fix_stream_offset_ds``): the poses then run on that clock."""
         pose_lag = np.asarray(self._pose_lag, np.int64)
         pose_received = np.asarray(self._pose_received, np.int64)
         from_fixes = np.asarray(self._pose_is_fix, bool)
         if from_fixes.any() and from_fixes.size == pose_lag.size:
-            pose_lag, pose_received = pose_lag[from_fixes], pose_received[from_fixes]
+            judged = ~from_fixes if (self.counters.get('fix_stream_offset_ds')
+                                     and not from_fixes.all()) else from_fixes
+            pose_lag, pose_received = pose_lag[judged], pose_received[judged]
         return pose_lag, pose_received
 
     def _rejoined_radar_clock(self) -> RecordingBuilder | None:

@@ -156,6 +156,16 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
         # over +-0.2 s; unchanged by a lag correction, which moves every fix alike
         measured = _position_velocities(t, positions)
         if has_fixes:
+            offset_s = _stream_offset(t, np.hypot(measured[:, 0], measured[:, 1]), to,
+                                      np.hypot(v_level[:, 0], v_level[:, 1]))
+            if offset_s is not None:
+                # onto the Odometry's clock, as a lag below: one clock for the poses, and
+                # the radar's against it is the fit's (or, whole seconds off, named there)
+                counters['fix_stream_offset_ds'] = int(round(10.0 * offset_s))
+                _LOG.warning('the NavSatFix stamps lie %+.1f s from the Odometry\'s: the '
+                             'fixes are taken on the Odometry\'s clock', offset_s)
+                stamps = stamps - int(round(offset_s * 1e9))
+                to = to + offset_s
             against = _fix_lag(t, measured[:, :2], to, yaw_true, v_level, rate)
             lag_s = against.lag_s
             if against.lever_arm_m is not None:
@@ -171,9 +181,11 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
                 v_level = v_level.copy()
                 v_level[:, 0] -= rate * left
                 v_level[:, 1] += rate * forward
+            if lag_s or offset_s is not None:
+                # the fix stamped t shows where the vehicle was at t - lag (the whole lag,
+                # the stream offset's included: a radar on the fixes' clock is -lag away)
+                counters['fix_lag_ms'] = int(round(1000.0 * (lag_s + (offset_s or 0.0))))
             if lag_s:
-                # the fix stamped t shows where the vehicle was at t - lag
-                counters['fix_lag_ms'] = int(round(1000.0 * lag_s))
                 _LOG.warning('the NavSatFix stamps lag the Odometry\'s by %.0f ms: the '
                              'fixes are taken at their stamp minus that', 1000.0 * lag_s)
                 stamps = stamps - int(round(lag_s * 1e9))
@@ -409,7 +421,20 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
         return none
     size = np.where(whole, np.hypot(jump[:, 0], jump[:, 1]), 0.0)
     spread = 1.4826 * np.median(np.abs(jump[whole] - np.median(jump[whole], axis=0)), axis=0)
-    limit = max(_FIX_STEP_MIN_M, _FIX_STEP_SIGMAS * float(np.hypot(*spread)))
+    # Stamp jitter too small for _stamp_jitter to smooth (a few ms) still places each fix
+    # off along the travel by speed x jitter, so the jumps' noise grows with speed; one
+    # limit from the whole drive's spread (set by its slow and stopped stretches) took the
+    # fastest stretch's scatter for a jump (a thirty-third probe: 3-4 ms of jitter, 21-27
+    # cm 'jumps' at 12 m/s in 3 of 7 drives, a third of each dropped as RTK float). The
+    # speed-proportional part of the spread along the travel is added at each interval's
+    # speed: none without jitter, and an RTK float step (decimetres to metres) still shows.
+    velocity = (rate_at_mid(before) + rate_at_mid(after)) * 0.5 if twist is None else (
+        0.5 * (twist[i, :2] + twist[i + 1, :2]))
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    limit = _FIX_STEP_SIGMAS * np.sqrt(float(spread @ spread)
+                                       + (speed * _jump_jitter_s(jump, velocity, speed,
+                                                                 whole)) ** 2)
+    limit = np.maximum(_FIX_STEP_MIN_M, limit)
     # one jump shows in the k intervals on either side too: its own is the largest
     peak = ndimage.maximum_filter1d(size, 2 * k + 1, mode='constant') == size
     at = np.flatnonzero((size > limit) & peak)
@@ -445,6 +470,20 @@ _JITTER_MIN_SPEED_MPS = 3.0
 _JITTER_ANISOTROPY = 3.0
 _JITTER_MIN_S = 0.005
 _JITTER_MIN_SAMPLES = 50
+
+
+def _jump_jitter_s(jump: F64, velocity: F64, speed: F64, whole: np.ndarray) -> float:
+    """The part of the jumps' (w, 2) scatter along the travel that grows with the speed
+    (``velocity`` (w, 2), ``speed`` (w,)), as a time [s]: the robust spread of the jump
+    along the travel per unit speed, less that across it (the fixes' own noise, alike in
+    every direction); 0 where too few intervals are moving."""
+    moving = whole & (speed > _JITTER_MIN_SPEED_MPS)
+    if int(moving.sum()) < _JITTER_MIN_SAMPLES:
+        return 0.0
+    unit = velocity[moving] / speed[moving, None]
+    along = np.einsum('ij,ij->i', jump[moving], unit) / speed[moving]
+    across = (jump[moving, 1] * unit[:, 0] - jump[moving, 0] * unit[:, 1]) / speed[moving]
+    return math.sqrt(max(0.0, _robust_sigma(along) ** 2 - _robust_sigma(across) ** 2))
 
 
 def _robust_sigma(x: F64) -> float:
@@ -1042,6 +1081,56 @@ _FIX_LAG_SIGMAS = 5.0
 _FIX_LAG_RATE_HZ = 10.0
 #: Grid steps between the lags searched first (see ``_fix_lag``).
 _FIX_LAG_COARSE = 4
+
+
+#: Offsets between the fixes' and the Odometry's clocks searched beyond ``_FIX_LAG_MAX_S``
+#: [s] (GPS, UTC and TAI differ by 18, 19 and 37 s), on a grid of this step [s]; taken when
+#: the speeds agree to ``_STREAM_OFFSET_MATCH`` of their misfit at the lag ``_fix_lag``
+#: searches, over at least ``_STREAM_OFFSET_OVERLAP`` of the fixes' span.
+_STREAM_OFFSET_MAX_S = 60.0
+_STREAM_OFFSET_STEP_S = 0.1
+_STREAM_OFFSET_MATCH = 0.25
+_STREAM_OFFSET_OVERLAP = 0.5
+
+
+def _stream_offset(t: F64, speed_fix: F64, to: F64, speed_odom: F64) -> float | None:
+    """Seconds by which the fixes' stamps lag the Odometry's where that is more than
+    ``_fix_lag`` searches (``_FIX_LAG_MAX_S``) and the speeds show it clearly, else None.
+
+    Why: a driver that stamps one stream in GPS time and the other in UTC puts them 18 s
+    apart (a thirty-third probe). Within the ~1 s ``_fix_lag`` searches the two then never
+    agree, and the Odometry's orientation and twist were condemned as another frame's and
+    replaced (0.24-0.30 m off, with advice about azimuth noise and the vehicle's size);
+    fixes 18 s late were refused with the radar's clock blamed. The speeds (not the
+    velocities: they need no heading, right or wrong) are compared on a grid of offsets:
+    the drive's stops and starts make one offset fit far better than every other.
+    """
+    if t.size < 50 or to.size < 50:
+        return None
+    step = _STREAM_OFFSET_STEP_S
+    grid = np.arange(t[0], t[-1], step)
+    fix = np.interp(grid, t, speed_fix)
+    order = np.argsort(to, kind='stable')
+    lags = np.arange(-_STREAM_OFFSET_MAX_S, _STREAM_OFFSET_MAX_S + 1e-9, step)
+    misfit = np.full(lags.size, np.inf)
+    for k, lag in enumerate(lags):
+        # the fix stamped t shows the vehicle at Odometry time t - lag
+        at = grid - lag
+        inside = (at >= to[order[0]]) & (at <= to[order[-1]])
+        if inside.sum() < _STREAM_OFFSET_OVERLAP * grid.size:
+            continue
+        odom = np.interp(at[inside], to[order], speed_odom[order])
+        misfit[k] = float(np.sqrt(np.mean((fix[inside] - odom) ** 2)))
+    near = np.abs(lags) <= _FIX_LAG_MAX_S
+    far = ~near & np.isfinite(misfit)
+    if not far.any() or not np.isfinite(misfit[near]).any():
+        return None
+    best = int(np.flatnonzero(far)[np.argmin(misfit[far])])
+    tolerance = max(_TWIST_TOLERANCE_MPS, _TWIST_TOLERANCE_FRACTION * float(np.median(fix)))
+    if (misfit[best] > tolerance
+            or misfit[best] > _STREAM_OFFSET_MATCH * float(np.min(misfit[near]))):
+        return None
+    return float(lags[best])
 
 
 @dataclass(frozen=True)

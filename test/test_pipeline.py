@@ -379,6 +379,28 @@ def test_radar_frames_outside_the_pose_stream_are_noted_with_the_jump() -> None:
     assert '75 of the 150 radar frames' in notes[1]
 
 
+def test_radar_frames_outside_poses_the_tool_left_out_are_not_blamed_on_the_clock() -> None:
+    """Fixes taken for RTK float and left out at the end of the drive take their radar
+    frames along: the note says so, and asks for the radar's time sync only in the other
+    case (a thirty-third probe was told to check the time sync after the tool's own cut)."""
+    from radar_calib_ros.pipeline import _clock_notes
+
+    rec = _recording(0.1)
+    kept = rec.vehicle.stamps_ns.size // 2
+    cut = dataclasses.replace(rec, vehicle=dataclasses.replace(
+        rec.vehicle, stamps_ns=rec.vehicle.stamps_ns[:kept],
+        positions_m=rec.vehicle.positions_m[:kept], yaw_rad=rec.vehicle.yaw_rad[:kept],
+        velocities_mps=rec.vehicle.velocities_mps[:kept],
+        yaw_rate_rps=rec.vehicle.yaw_rate_rps[:kept]))
+    notes = _clock_notes(cut, CalibConfig())
+    assert len(notes) == 1 and 'Check the radar\'s time synchronisation' in notes[0]
+    dropped = dataclasses.replace(cut, counters={**cut.counters,
+                                                 'fixes_silent_float_dropped': 400})
+    notes = _clock_notes(dropped, CalibConfig())
+    assert len(notes) == 1 and 'the poses left out above' in notes[0], notes
+    assert 'Only if the vehicle' in notes[0]
+
+
 def test_the_recorders_clock_names_a_radar_offset_or_jump() -> None:
     from radar_calib_ros.pipeline import _clock_notes
 
@@ -391,6 +413,12 @@ def test_the_recorders_clock_names_a_radar_offset_or_jump() -> None:
     taken_out = CalibConfig.from_mapping({'sync': {'time_offset': -18.0}})
     # (this recording's frames, shifted so, leave the poses: that note is another's)
     assert not [n for n in _clock_notes(ahead, taken_out) if 'received' in n]
+    # a radar on the fixes' clock, the fixes moved 18 s onto the Odometry's: the stage-6
+    # shift and the late-Odometry note take it, no sync.time_offset to set
+    on_fixes = dataclasses.replace(rec, counters={**rec.counters, 'radar_stamp_offset_ms': 18000,
+                                                  'fix_stream_offset_ds': 180,
+                                                  'fix_lag_ms': 17990})
+    assert not [n for n in _clock_notes(on_fixes, CalibConfig()) if 'received' in n]
     missed = CalibConfig.from_mapping({'sync': {'time_offset': -9.99}})
     notes = [n for n in _clock_notes(ahead, missed) if 'received' in n]
     assert len(notes) == 1 and 'leaves +8.0 s' in notes[0] and 'about -18.0' in notes[0]
