@@ -67,6 +67,8 @@ _ROBUST_ROUNDS = 3
 _CELL_M = 5.0
 #: Fewest targets for a cell's own scatter estimate.
 _MIN_CELL_TARGETS = 20
+#: Nearer than this to the plane [m], the sensor's side of it does not tell up from down.
+_SIDE_MARGIN_M = 2.0
 
 
 def fit_ground_plane(points_m: F64, cfg: GroundConfig) -> GroundPlane:
@@ -128,9 +130,19 @@ def fit_ground_plane(points_m: F64, cfg: GroundConfig) -> GroundPlane:
     normal, centroid, keep = _robust_plane(points[dense], elevation_directions(points[dense]),
                                            normal, cell.ravel())
     used = dense[keep]
-    # Up is the side of the plane the sensor (the origin) is on.
+    # Up is the side of the plane the sensor (the origin) is on, where that is clear; a
+    # plane within ``_SIDE_MARGIN_M`` of the sensor is taken with the sensor's z up (its
+    # upright mount). The targets' plane lies about half a metre over its road, so a road
+    # at the radar's own height leaves the side to chance: an independent overpass, road
+    # traffic on a bridge 6 m up beside a radar 6.5-7.5 m up, gave the plane of the bridge's
+    # cars with the radar 0-1 m under it, a ground 'above' the radar, and the recording was
+    # refused as a mirror image (5 of 11 drives); a radar hung upside down is rarer still
+    # at its road's height.
     side = float(normal @ centroid)
-    if side > 0.0 or (side == 0.0 and normal[2] < 0.0):
+    if abs(side) < _SIDE_MARGIN_M:
+        if normal[2] < 0.0:
+            normal = -normal
+    elif side > 0.0:
         normal = -normal
     offset = float(normal @ centroid)
     _LOG.debug('ground plane from %d of %d targets, normal %s, offset %.3f m', used.size,

@@ -99,6 +99,18 @@ def test_normal_points_to_the_sensor_side() -> None:
         assert plane.normal[2] * flip > 0.0
 
 
+def test_a_road_at_the_radars_own_height_keeps_the_normal_up() -> None:
+    """Traffic on a bridge beside the radar (an independent overpass: the bridge's cars
+    0-1 m above a radar 6.5 m up) puts the targets' plane at or above the sensor: which
+    side the sensor is on says nothing, and the recording was refused as a mirror image.
+    Near the sensor, up is the sensor's z; far from it, the sensor's side as before."""
+    points, up = _scene(seed=3, n=20_000)
+    raised = points + up * (HEIGHT_M - 0.3)       # the road 0.3 m under the radar
+    plane = fit_ground_plane(raised, GroundConfig())
+    assert plane.normal @ up > 0.0 and _angle_deg(plane.normal, up) < 0.2
+    assert abs(plane.offset_m) < ground_plane._SIDE_MARGIN_M
+
+
 def test_static_facade_and_sparse_clutter_do_not_tilt_the_plane() -> None:
     points, up = _scene(seed=11, n=60_000)
     rng = np.random.default_rng(11)
