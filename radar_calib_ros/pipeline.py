@@ -801,9 +801,12 @@ def _data_notes(recording: Recording, corrections: list[str],
                 if jumps > 1 else f'at {c["fix_jumps_first_s"]} s')
         smooth = ('the Odometry\'s twist' if recording.counters.get('odometry', 0)
                   and not recording.counters.get('odometry_twist_replaced') else 'its path')
-        what = (f'{dropped} {poses} ({100 * dropped / max(total, 1):.0f} %) between the '
-                'jumps, the shorter share of the drive, were taken as float and left out with '
-                'the radar frames they would have placed' if dropped else
+        which = ('where they scattered by centimetres more than elsewhere, as RTK float does'
+                 if c.get('silent_float_by_noise') else
+                 'between the jumps, the shorter share of the drive')
+        what = (f'{dropped} {poses} ({100 * dropped / max(total, 1):.0f} %) {which}, were '
+                'taken as float and left out with the radar frames they would have placed'
+                if dropped else
                 'which stretches are float is not clear (they would be much of the drive), so '
                 f'every {pose} was kept and the reported uncertainty takes half a jump as '
                 f'the {poses}\' error')
