@@ -765,6 +765,12 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'resolution of its stamps, 0.1 s?): the first received of each stamp was '
                      'kept, the others left out. Stamp each fix with its own epoch, to the '
                      'millisecond.')
+    stale = recording.counters.get('fixes_stale_dropped', 0)
+    if stale >= max(10, 0.05 * fixes):
+        notes.append(f'{stale} of the vehicle\'s {fixes} fixes repeated the position before '
+                     'them under a new stamp (a receiver slower than its driver publishes, its '
+                     'last position sent again): the copies were left out. Set the driver\'s '
+                     'rate to the receiver\'s, or the receiver\'s to the driver\'s.')
     declared = recording.fix_sigma_m
     if (used and recording.fix_grade == 'rtk' and standalone <= 0.5 * used
             and declared is not None and declared[0] >= _IMPLAUSIBLE_RTK_SIGMA_M):

@@ -87,6 +87,10 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
             counters['fixes_sbas_dropped'] = int(
                 np.count_nonzero(degraded & (fixes[:, 4] == 1)))
             stamps, fixes = stamps[~degraded], fixes[~degraded]
+        stale = _stale_repeats(stamps, fixes)
+        if stale.any():
+            counters['fixes_stale_dropped'] = int(stale.sum())
+            stamps, fixes = stamps[~stale], fixes[~stale]
         declared = fixes[np.isfinite(fixes[:, 5]), 5]
         status_rtk = bool(np.mean(fixes[:, 4] >= 2) > 0.5 or (
             np.all(fixes[:, 4] == 0) and declared.size > 0
@@ -364,7 +368,8 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
     jump missed (a float stretch that began where its error was small) flips the
     alternation after it; where that leaves no clearly smaller share, nothing is dropped,
     only said (on the eleventh probe's recordings about 97 % of the dropped fixes were
-    float). ``across_only``: fixes whose stamps scatter (``_stamp_jitter``) scatter along
+    float). Float noisier than the fix is told by its noise instead (``_noisy_runs``).
+    ``across_only``: fixes whose stamps scatter (``_stamp_jitter``) scatter along
     the travel by decimetres, which would hide any jump there; across it they stay exact,
     so only the jumps' part across the travel is measured (a false fix of 0.7-1 m over a
     pass, missed in a sixteenth probe's jittered fixes: 0.13-0.78 m off).
@@ -602,6 +607,33 @@ def _window_quadratics(t: F64, values: F64, k: int, origin: F64
     gram[(np.diff(tw, axis=1) != 0.0).sum(axis=1) < 2] += np.eye(3)
     coef = np.linalg.solve(gram, np.einsum('wki,wkd->wid', design, vw))
     return vw, design, coef
+
+
+#: A run of fixes repeating one position that spans less than this [s] is a slower
+#: receiver's position republished (5 Hz positions in 20 Hz messages); a longer one is the
+#: vehicle standing (a receiver's static hold), kept.
+_STALE_RUN_S = 1.0
+
+
+def _stale_repeats(stamps: I64, fixes: F64) -> np.ndarray:
+    """(n,) fixes (sorted by stamp) that repeat the position of the fix before them to the
+    digit, within a run shorter than ``_STALE_RUN_S``.
+
+    Why: a driver that republishes a receiver's last position at its own, faster rate
+    stamps each copy anew, so the vehicle seems to stand, then leap, four times a fifth
+    of a second: a thirty-third probe's were smoothed as fixes stamped on arrival (78 ms
+    of 'jitter') and a 72 ms lag was found that was not there. The first of each run
+    holds the position at its stamp; the copies are left out."""
+    if stamps.size < 2:
+        return np.zeros(stamps.size, bool)
+    same = np.all(fixes[1:, 1:4] == fixes[:-1, 1:4], axis=1)
+    repeat = np.concatenate([[False], same])
+    # each run of copies with the fix it copies: its first and last stamps
+    run = np.cumsum(~repeat) - 1
+    first = np.flatnonzero(~repeat)
+    last = np.append(first[1:], stamps.size) - 1
+    span_s = (stamps[last] - stamps[first]) * 1e-9
+    return repeat & (span_s[run] < _STALE_RUN_S)
 
 
 def _shared_stamps(fixes: F64, first: I64) -> int:

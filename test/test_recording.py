@@ -1855,3 +1855,27 @@ def test_pose_streams_seconds_apart_are_put_on_one_clock(odom_shift_s: float) ->
     assert (rec.vehicle.stamps_ns[0] - T0) / 1e9 == pytest.approx(odom_shift_s, abs=0.02)
     notes = [n for n in _data_notes(rec, []) if 'Odometry' in n]
     assert len(notes) == 1 and f'{-odom_shift_s:+.1f} s from the Odometry' in notes[0]
+
+
+def test_a_slower_receivers_positions_sent_again_are_left_out_not_smoothed() -> None:
+    """A driver republishing a 5 Hz receiver's last position at 20 Hz (a thirty-third
+    probe): each copy under a new stamp looked like 78 ms of stamp jitter and a 72 ms lag.
+    The copies are left out and named; a vehicle standing for seconds with its position
+    held (a receiver's static hold) keeps every fix."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    rng = np.random.default_rng(4)
+    epoch, _, _, xy = _slalom_fixes(rng)
+    held = xy[(np.arange(epoch.size) // 4) * 4]
+    rec = _fixes_stamped_at(epoch, held).build()
+    c = rec.counters
+    assert c['fixes_stale_dropped'] == epoch.size - epoch.size // 4
+    assert 'fix_stamp_jitter_ms' not in c and 'fix_jumps' not in c
+    np.testing.assert_allclose((rec.vehicle.stamps_ns - T0) / 1e9, epoch[::4], atol=1e-6)
+    notes = [n for n in _data_notes(rec, []) if 'repeated the position' in n]
+    assert len(notes) == 1 and 'the copies were left out' in notes[0]
+    # standing 10 s, the position held to the digit: kept
+    standing = xy.copy()
+    standing[1000:1200] = standing[1000]
+    c = _fixes_stamped_at(epoch, standing).build().counters
+    assert 'fixes_stale_dropped' not in c
