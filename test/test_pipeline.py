@@ -248,6 +248,34 @@ def drive(tmp_path_factory: pytest.TempPathFactory) -> Any:
     return summary, CalibConfig.from_file(summary.paths.params)
 
 
+def test_a_failed_stage_6_on_a_plane_near_the_radar_is_tried_on_every_target(
+        drive: Any) -> None:
+    """Roads at two levels (a bridge about the radar's height) tilt the moving targets'
+    plane and put it a few metres from the radar; stage 6 failed and the recording was
+    refused as a mirror image (a thirty-fourth probe). Such a failure runs stages 4-6
+    again on the plane of every target, with a note; a plane at a mount's height or a
+    configuration that already uses every target does not."""
+    from radar_calib_ros.io.bag import read_recording
+
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    tracked = pipeline.track_targets(recording, config)
+    plane = pipeline._ground_plane(recording, tracked, config)[0]
+    near = [(dataclasses.replace(plane, offset_m=-2.0), ())]
+    out = pipeline._ground_of_all_targets(recording, tracked, config, pipeline._StageClock(),
+                                          near)
+    assert out is not None
+    level_config, (ground, _, tracks, _, selection), note = out
+    assert level_config.ground.targets == 'all' and selection.n_passes >= 3
+    assert 'two levels' in note and 'ground.targets: all' in note
+    far = [(dataclasses.replace(plane, offset_m=-6.5), ())]
+    assert pipeline._ground_of_all_targets(recording, tracked, config,
+                                           pipeline._StageClock(), far) is None
+    every = config.replaced({'ground.targets': 'all'})
+    assert pipeline._ground_of_all_targets(recording, tracked, every,
+                                           pipeline._StageClock(), near) is None
+
+
 def test_a_clock_offset_fitted_beyond_its_bound_is_noted(drive: Any,
                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     """The clock-offset bound is a soft prior in the fit; an estimate past it (sparse poses)

@@ -1336,18 +1336,23 @@ def test_fixes_sharing_a_rounded_stamp_keep_the_first_received(heading_rad: floa
 def _weaving_fixes(duration_s: float, floats: list[tuple[float, float, tuple[float, float]]],
                    with_odometry: bool, seed: int = 3,
                    yaw_swing: tuple[float, float] = (1.2, 30.0),
-                   heading_error: Any = None, float_noise_m: float = 0.0) -> RecordingBuilder:
+                   heading_error: Any = None, float_noise_m: float = 0.0,
+                   stop_and_go: bool = False, odom_shift_s: float = 0.0) -> RecordingBuilder:
     """20 Hz RTK fixes (1 cm noise) of a car that brakes, accelerates and turns (its heading
     swinging by ``yaw_swing`` = (amplitude rad, period s)), and in ``floats`` (start s, end
-    s, (east, north) bias m) RTK float: the bias, wandering by a few cm, while status and
-    covariance still say RTK fixed; with its Odometry at 50 Hz, whose orientation errs by
-    ``heading_error(t)`` [rad] if given."""
+    s, (east, north) bias m) RTK float: the bias, wandering by a few cm and
+    ``float_noise_m`` noisy, while status and covariance still say RTK fixed; with its
+    Odometry at 50 Hz, stamped ``odom_shift_s`` late, whose orientation errs by
+    ``heading_error(t)`` [rad] if given. ``stop_and_go``: speeds 0-14 m/s with no period."""
     rng = np.random.default_rng(seed)
     frame = LocalFrame.at(LAT0, LON0)
 
     def state(t: np.ndarray) -> tuple[np.ndarray, ...]:
         # speed 4-14 m/s (up to +-3 m/s^2), heading turning by up to 0.25 rad/s
         speed = 9.0 + 5.0 * np.sin(2 * np.pi * t / 21.0)
+        if stop_and_go:
+            speed = np.clip(7.0 + 5.0 * np.sin(2 * np.pi * t / 23.0)
+                            + 4.0 * np.sin(2 * np.pi * t / 61.0 + 1.0), 0.0, None)
         yaw = yaw_swing[0] * np.sin(2 * np.pi * t / yaw_swing[1])
         return speed, yaw
 
@@ -1376,8 +1381,8 @@ def _weaving_fixes(duration_s: float, floats: list[tuple[float, float, tuple[flo
         conv = frame.local_convergence_rad(np.full(t_odom.size, LAT0), np.full(t_odom.size, LON0))
         error = heading_error(t_odom) if heading_error is not None else np.zeros(t_odom.size)
         for i, ti in enumerate(t_odom):
-            builder.add_odometry(_odom(T0 + int(round(ti * 1e9)), y_odom[i] + conv[i] + error[i],
-                                       s_odom[i], rate[i]))
+            builder.add_odometry(_odom(T0 + int(round((ti + odom_shift_s) * 1e9)),
+                                       y_odom[i] + conv[i] + error[i], s_odom[i], rate[i]))
     return builder
 
 
@@ -1803,36 +1808,6 @@ def test_windows_of_samples_at_one_time_fit_without_failing() -> None:
     np.testing.assert_allclose(coef[regular, 0, 0], expected[regular], rtol=1e-9)
 
 
-def _stop_and_go_builder(odom_shift_s: float) -> RecordingBuilder:
-    """180 s of 20 Hz RTK fixes and 50 Hz Odometry of a car in stop-and-go traffic (speeds
-    0-14 m/s, no period), the Odometry stamped ``odom_shift_s`` later than the fixes."""
-    rng = np.random.default_rng(3)
-    frame = LocalFrame.at(LAT0, LON0)
-    fine = np.arange(0.0, 180.0, 0.001)
-    speed = np.clip(7.0 + 5.0 * np.sin(2 * np.pi * fine / 23.0)
-                    + 4.0 * np.sin(2 * np.pi * fine / 61.0 + 1.0), 0.0, None)
-    yaw = 0.8 * np.sin(2 * np.pi * fine / 37.0)
-    xy = np.column_stack([np.cumsum(speed * np.cos(yaw)), np.cumsum(speed * np.sin(yaw))]) * 1e-3
-    t_fix = np.arange(0.0, 180.0, 0.05)
-    local = np.column_stack([np.interp(t_fix, fine, xy[:, 0]), np.interp(t_fix, fine, xy[:, 1]),
-                             np.zeros(t_fix.size)])
-    local[:, :2] += rng.normal(0.0, 0.01, (t_fix.size, 2))
-    lat, lon, alt = frame.local_to_geodetic(local)
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    for i, ti in enumerate(t_fix):
-        builder.add_fix(FixSample(T0 + int(round(ti * 1e9)), lat[i], lon[i], alt[i], 2,
-                                  (0.02, 0.03)))
-    t_odom = np.arange(0.0, 180.0, 0.02)
-    s_odom, y_odom = np.interp(t_odom, fine, speed), np.interp(t_odom, fine, yaw)
-    rate = np.gradient(y_odom, t_odom)
-    conv = frame.local_convergence_rad(np.full(t_odom.size, LAT0), np.full(t_odom.size, LON0))
-    for i, ti in enumerate(t_odom):
-        builder.add_odometry(_odom(T0 + int(round((ti + odom_shift_s) * 1e9)),
-                                   y_odom[i] + conv[i], s_odom[i], rate[i]))
-    return builder
-
-
 @pytest.mark.parametrize('odom_shift_s', [0.0, 18.0, -18.0, 1.5])
 def test_pose_streams_seconds_apart_are_put_on_one_clock(odom_shift_s: float) -> None:
     """An Odometry stamped 18 s off the fixes (GPS time beside UTC) or 1.5 s late (a
@@ -1843,7 +1818,8 @@ def test_pose_streams_seconds_apart_are_put_on_one_clock(odom_shift_s: float) ->
     streams on one clock are left alone."""
     from radar_calib_ros.pipeline import _data_notes
 
-    rec = _stop_and_go_builder(odom_shift_s).build()
+    rec = _weaving_fixes(180.0, [], True, yaw_swing=(0.8, 37.0), stop_and_go=True,
+                         odom_shift_s=odom_shift_s).build()
     c = rec.counters
     assert 'odometry_orientation_replaced' not in c and 'odometry_twist_replaced' not in c
     if odom_shift_s == 0.0:
