@@ -847,7 +847,8 @@ def _data_notes(recording: Recording, corrections: list[str],
     elif recording.counters.get('fix_stream_offset_ds'):
         notes.append(f'The NavSatFix stamps lie {lag_ms / 1000:+.1f} s from the Odometry\'s '
                      '(seen in the vehicle\'s stops and starts): the fixes were put on the '
-                     'Odometry\'s clock, which the radar\'s agrees with. A whole number of '
+                     'Odometry\'s clock, and the radar\'s clock offset is reported against '
+                     'it. A whole number of '
                      'seconds is most often one stream in GPS time and the other in UTC (18 '
                      's apart): check how the GNSS driver stamps its fixes.')
     elif lag_ms:
@@ -1330,8 +1331,9 @@ def _ground_of_all_targets(recording: Recording, tracked: TrackedTargets, config
     6.5 m up and 40 m from it) give the moving targets no one plane: fitted through both,
     it tilts by degrees and lies a few metres from the radar, stage 6 finds no agreement,
     and the recording was refused as a mirror image (2 of 4 drives). The road's surface
-    and what stands on it (every target) hold the lower level; with them all three such
-    drives calibrated (9-36 cm, inside 2 sigma)."""
+    and what stands on it (every target) hold the lower level: with them the probe's
+    refused drives calibrated (9-36 cm beside the bridge; 40 m from it 2.0 and 25.8 cm,
+    inside 2 sigma)."""
     if config.ground.targets != 'moving' or not made:
         return None
     near_m = abs(made[-1][0].offset_m)
@@ -1372,7 +1374,7 @@ def _finish(recording: Recording, config: CalibConfig, stage: _StageClock,
 def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                  progress: ProgressFn | None, tracked: TrackedTargets, ground: GroundPlane,
                  tracks: tuple[SmoothedTrack, ...], selection: HypothesisSelection,
-                 clutter_note: str | None, sparse_note: str | None) -> CalibrationResult:
+                 clutter_note: str | None, retry_note: str | None) -> CalibrationResult:
     """The paper's polygon refinement, our final fit and the quality figures on stage 6's
     selection."""
     targets = recording.targets
@@ -1408,8 +1410,8 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                                               if sign < 0 else '') + '.')
         _LOG.warning('%s', flip_note)
     corrections = [flip_note] if factor != 1.0 else []
-    if sparse_note:
-        corrections.insert(0, sparse_note)
+    if retry_note:
+        corrections.insert(0, retry_note)
     if clutter_note:
         corrections.insert(0, clutter_note)
     folding = velocity_folding.detect_folding(current, recording, tracked.target_index, config)
