@@ -848,9 +848,9 @@ def _data_notes(recording: Recording, corrections: list[str],
         notes.append(f'The NavSatFix stamps lie {lag_ms / 1000:+.1f} s from the Odometry\'s '
                      '(seen in the vehicle\'s stops and starts): the fixes were put on the '
                      'Odometry\'s clock, and the radar\'s clock offset is reported against '
-                     'it. A whole number of '
-                     'seconds is most often one stream in GPS time and the other in UTC (18 '
-                     's apart): check how the GNSS driver stamps its fixes.')
+                     'it. A whole number of seconds is most often one stream in GPS time and '
+                     'the other in UTC (18 s apart): check how the GNSS driver stamps its '
+                     'fixes.')
     elif lag_ms:
         notes.append(f'The NavSatFix stamps lag the Odometry\'s by {lag_ms} ms (seen where the '
                      'vehicle turned or changed speed): each fix was taken at its stamp minus '

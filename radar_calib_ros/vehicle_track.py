@@ -530,10 +530,17 @@ def _jump_jitter_s(jump: F64, velocity: F64, speed: F64, whole: np.ndarray) -> f
     moving = whole & (speed > _JITTER_MIN_SPEED_MPS)
     if int(moving.sum()) < _JITTER_MIN_SAMPLES:
         return 0.0
-    unit = velocity[moving] / speed[moving, None]
-    along = np.einsum('ij,ij->i', jump[moving], unit) / speed[moving]
-    across = (jump[moving, 1] * unit[:, 0] - jump[moving, 0] * unit[:, 1]) / speed[moving]
+    along, across = _along_across(jump[moving], velocity[moving] / speed[moving, None])
+    along, across = along / speed[moving], across / speed[moving]
     return math.sqrt(max(0.0, _robust_sigma(along) ** 2 - _robust_sigma(across) ** 2))
+
+
+def _along_across(vectors: F64, unit: F64) -> tuple[F64, F64]:
+    """Horizontal ``vectors`` (n, 2) split along the unit directions ``unit`` (n, 2) of the
+    travel and across them (positive to the left)."""
+    along = np.einsum('ij,ij->i', vectors, unit)
+    across = vectors[:, 1] * unit[:, 0] - vectors[:, 0] * unit[:, 1]
+    return along, across
 
 
 def _robust_sigma(x: F64) -> float:
@@ -580,8 +587,7 @@ def _stamp_jitter(t: F64, positions: F64) -> tuple[F64, float, float] | None:
         return None
     heading = rate[moving] / speed[moving, None]
     residual = positions[centre[moving], :2] - value[moving, :2]
-    along = np.einsum('ij,ij->i', residual, heading)
-    across = residual[:, 1] * heading[:, 0] - residual[:, 0] * heading[:, 1]
+    along, across = _along_across(residual, heading)
     sigma_along, sigma_across = _robust_sigma(along), _robust_sigma(across)
     spread_s = _robust_sigma(along / speed[moving])
     if spread_s < _JITTER_MIN_S or sigma_along < _JITTER_ANISOTROPY * sigma_across:
