@@ -92,7 +92,8 @@ from radar_calib_ros.core.refine_clock import (_clock_drift, _clock_step, _mid_r
 from radar_calib_ros.core.refine_covariance import (
     _VELOCITY_SUSPECTS, _check_not_diverged, _Diverged, _halves_disagreement, _halves_shift,
     _height_difference_shift, _height_shift, _lane_separation, _line_axis, _pose_block,
-    _position_spread, _range_bands, _start_term, _turn_between_passes)
+    _position_spread, _range_bands, _start_term, _turn_between_passes,
+    along_boresight_share, start_error_m)
 from radar_calib_ros.core.refine_diagnostics import _diagnostics
 from radar_calib_ros.core.refine_model import (
     _START_SIGMA_M, ClockDrift, _anchor, _change, _Fit, _Model, _parameter_sigma, _priors,
@@ -732,7 +733,14 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     pb = uncertainty.pass_jackknife_covariance(j * w[:, None], r * w, row_band, jp.T @ jp,
                                                prior_term=False)
     halves_shift = _halves_shift(pc, jp.T @ jp)
-    start_term = _start_term(pc, jp.T @ jp, config, start_sigma_m)
+    heading = poses.at(data.times.frame_t + est.time_offset_s)[1][data.times.inverse]
+    along_share = along_boresight_share(heading, data.sqrt_weight ** 2, math.atan2(
+        est.rotation[1, 0], est.rotation[0, 0]))
+    # a position held at the paper's estimate (every drive along the boresight) may be the
+    # whole car length off, whatever the share
+    start_error = (config.vehicle.length if start_sigma_m < _START_SIGMA_M
+                   else start_error_m(along_share, config))
+    start_term = _start_term(pc, jp.T @ jp, config, start_sigma_m, start_error)
     covariance = uncertainty.shrink_correlations(uncertainty.combined_covariance(pc, pb),
                                                  pc.n_passes) + start_term
     cov7 = uncertainty.add_along_boresight(_pose_block(covariance, estimate_tau), est.rotation,

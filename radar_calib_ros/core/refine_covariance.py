@@ -245,12 +245,50 @@ def _height_shift(model: _Model, x: F64, jacobian: F64, sqrt_w: F64, j_prior: F6
 
 
 #: How far the paper's stages may leave the radar along a direction the final fit's data do
-#: not measure, in vehicle lengths (see ``_start_term``).
+#: not measure, in vehicle lengths, where the vehicle is seen heading along the boresight
+#: (see ``_start_term``) ...
 _START_ERROR_LENGTHS = 1.0
+#: ... and where it is seen crossing the view or turning through it [m].
+_START_ERROR_CROSSING_M = 1.0
+#: Share of the information seen heading along the boresight from which the paper's stages
+#: may be a whole car length off (``start_error_m``).
+_ALONG_SHARE_FULL = 0.9
+
+
+def along_boresight_share(yaw_rad: F64, weights: F64, boresight_rad: float) -> float:
+    """Share of the information (``weights``) seen while the vehicle headed towards or away
+    from the radar (``uncertainty.near_axis`` of the boresight, heading ``yaw_rad``)."""
+    total = float(np.sum(weights))
+    if total <= 0.0:
+        return 0.0
+    return float(np.sum(weights * uncertainty.near_axis(yaw_rad, boresight_rad)) / total)
+
+
+def start_error_m(along_share: float, config: CalibConfig) -> float:
+    """How far the paper's stages may have left the radar [m] (1 sigma), from the share of
+    the information seen heading along the boresight (``along_boresight_share``).
+
+    Seen only head-on and tail-on, the vehicle's tracks reflect at its front when it comes
+    and at its rear when it goes, and the paper's stages can be a car length off along the
+    boresight (a twentieth probe: 1-4 m). Seen from the side, the depth of the reflections
+    is the width of the car or less: the paper's stages were 0.18-0.50 m off along the
+    boresight on eight of a thirty-fourth probe's junction recordings, at most 0.96 m (along;
+    metres across, where the data measured it) on our 33 bench runs. A car length there
+    made the reported uncertainty 0.5-0.9 m along the boresight at true errors of 2-24 cm,
+    and its advice asked for drives the calibration did not need. Between the two the
+    scale follows the share, reaching a car length where ``_ALONG_SHARE_FULL`` of it runs
+    along the boresight (where the refinement also holds a fit that ran off, see
+    ``refine._drives_along_boresight``).
+    """
+    length = _START_ERROR_LENGTHS * config.vehicle.length
+    crossing = min(_START_ERROR_CROSSING_M, length)
+    blend = min(max(along_share / _ALONG_SHARE_FULL, 0.0), 1.0)
+    return crossing + blend * (length - crossing)
 
 
 def _start_term(passes: uncertainty.PassCovariance, prior_hessian: F64,
-                config: CalibConfig, start_sigma_m: float = _START_SIGMA_M) -> F64:
+                config: CalibConfig, start_sigma_m: float = _START_SIGMA_M,
+                start_error: float | None = None) -> F64:
     """Covariance the start's own error adds where the data leave the horizontal position
     to the half-metre prior around the paper's estimate (``_START_SIGMA_M``).
 
@@ -260,11 +298,14 @@ def _start_term(passes: uncertainty.PassCovariance, prior_hessian: F64,
     reflecting at its front when it comes and its rear when it goes): a twentieth probe's
     radar looking along the road was 3.5-4 m off along the boresight at a reported 0.5 m,
     24 of 45 such drives outside two sigma. How much of the estimate the prior decides is
-    H^-1 P; a start uncertain by a car length instead of the prior's half metre scales the
-    prior's term H^-1 P H^-1 by their squared ratio, in the horizontal position only. Where
-    the data measure the position (junctions, turns) it adds nothing.
+    H^-1 P; a start uncertain by ``start_error`` [m] (``start_error_m``; a car length when
+    None) instead of the prior's half metre scales the prior's term H^-1 P H^-1 by their
+    squared ratio, in the horizontal position only. Where the data measure the position
+    (junctions, turns) it adds little.
     """
-    scale2 = (_START_ERROR_LENGTHS * config.vehicle.length / start_sigma_m) ** 2
+    if start_error is None:
+        start_error = _START_ERROR_LENGTHS * config.vehicle.length
+    scale2 = (start_error / start_sigma_m) ** 2
     p_xy = np.zeros_like(prior_hessian)
     p_xy[3:5, 3:5] = prior_hessian[3:5, 3:5]
     term: F64 = max(scale2 - 1.0, 0.0) * uncertainty.prior_part_covariance(

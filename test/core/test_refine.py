@@ -1591,6 +1591,42 @@ def test_the_start_uncertainty_counts_only_where_the_data_leave_the_position_to_
     assert term[4, 4] < 1e-6 and np.allclose(term[[0, 1, 2, 5, 6, 7]], 0.0)
 
 
+def test_the_start_may_be_a_car_length_off_only_where_the_vehicle_is_seen_head_on_or_tail_on(
+        ) -> None:
+    """Seen from the side the paper's stages are within about a metre (the depth of a side's
+    reflections); seen only head-on and tail-on, a car length. The scale follows the share
+    of the information seen heading along the boresight, and so does the start term."""
+    config = CalibConfig()
+    length = config.vehicle.length
+    boresight = math.radians(30.0)
+    crossing = np.full(10, boresight + math.pi / 2)       # across the view
+    towards = np.full(10, boresight + math.pi + 0.1)      # towards the radar, 6 deg off
+    weights = np.ones(20)
+    assert refine_covariance.along_boresight_share(crossing, weights[:10], boresight) == 0.0
+    assert refine_covariance.along_boresight_share(towards, weights[:10], boresight) == 1.0
+    half = refine_covariance.along_boresight_share(np.concatenate([crossing, towards]),
+                                                   weights, boresight)
+    assert half == pytest.approx(0.5)
+    assert refine_covariance.start_error_m(0.0, config) == pytest.approx(1.0)
+    assert refine_covariance.start_error_m(1.0, config) == pytest.approx(length)
+    assert 1.0 < refine_covariance.start_error_m(half, config) < length
+    n_par = 8
+    prior = np.zeros((n_par, n_par))
+    prior[3, 3] = prior[4, 4] = 1.0 / refine_model._START_SIGMA_M ** 2
+    hessians = np.zeros((3, n_par, n_par))
+    for k in range(n_par):
+        hessians[:, k, k] = 1.0       # x and y measured as well as the prior holds them
+    passes = uncertainty.PassCovariance(np.zeros((n_par, n_par)), np.zeros((3, n_par)), 3,
+                                        1.0, hessians, np.zeros((3, n_par)))
+    side = refine_covariance._start_term(passes, prior, config,
+                                         start_error=refine_covariance.start_error_m(0.0, config))
+    head_on = refine_covariance._start_term(passes, prior, config,
+                                            start_error=refine_covariance.start_error_m(1.0,
+                                                                                        config))
+    ratio = (length ** 2 - 0.25) / (1.0 - 0.25)
+    assert head_on[3, 3] == pytest.approx(ratio * side[3, 3], rel=1e-9) and side[3, 3] > 0.0
+
+
 def test_the_vehicles_targets_inside_its_box_are_kept_from_a_track_it_shares(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Two cars alongside the vehicle in its first pass (0.6 m gaps) share one track with it:
