@@ -704,7 +704,14 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'its own frame rather than the vehicle\'s): it was taken off. Check the '
                      'INS yaw alignment.')
     wander_cdeg = recording.counters.get('odometry_heading_wander_cdeg')
-    if wander_cdeg:
+    settled_s = recording.counters.get('odometry_heading_settled_s')
+    if wander_cdeg and settled_s:
+        notes.append(f'The Odometry heading was {wander_cdeg / 100:.1f} deg off the vehicle\'s '
+                     f'course over ground on its first straight stretch and settled within '
+                     f'about {settled_s} s (an INS still aligning its heading after start-up?): '
+                     'the course over ground on straight stretches corrected it, '
+                     'interpolated between. Start recording once the INS has converged.')
+    elif wander_cdeg:
         notes.append(f'The Odometry heading wanders from the vehicle\'s course over ground, by up '
                      f'to {wander_cdeg / 100:.1f} deg over the drive (an INS holding its heading '
                      'by its gyro between manoeuvres, without a second antenna?): the course '

@@ -943,8 +943,16 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, positions: F64, yaw
             width = 2 * int(math.ceil(_TWIST_CHECK_SPAN_S / max(step, 1e-3))) + 1
             turning = ndimage.maximum_filter1d(turning.astype(np.int8), width) > 0
         straight = ~turning
-        offset = _heading_offset(yaw[moving], courses, counters, t[moving], straight)
         best = min(courses, key=lambda c: _median_turn(yaw[moving], c))
+        settled = (_heading_settled(t[moving][straight],
+                                    wrap_angle(yaw[moving] - best)[straight]) if rtk else None)
+        steady = straight
+        if settled is not None:
+            # the offset is the INS's alignment once it has converged: the start-up's tail
+            # would be taken for one (0.4 deg 'throughout' of a 15 deg start)
+            counters['odometry_heading_settled_s'] = max(1, int(round(settled - t[0])))
+            steady = straight & (t[moving] >= settled)
+        offset = _heading_offset(yaw[moving], courses, counters, t[moving], steady)
         wander = (_heading_wander(t[moving][straight],
                                   wrap_angle(yaw[moving] - offset - best)[straight], t,
                                   counters) if rtk else None)
@@ -1028,7 +1036,10 @@ def _heading_offset(heading: F64, courses: list[F64], counters: Counter[str],
 _HEADING_WANDER_BIN_S = 10.0
 _HEADING_WANDER_MIN_SAMPLES = 20
 _HEADING_WANDER_MIN_RAD = math.radians(0.6)
-_HEADING_WANDER_MAX_RAD = math.radians(5.0)
+#: (20 deg: a single-antenna INS converging after start-up is 8-15 deg off for its first
+#: minute; with 5 deg a thirty-third probe's first passes kept 2-7 deg of it, 0.13-0.18 deg
+#: of rotation and up to 20 cm off -> 0.03-0.11 deg, 3-7 cm.)
+_HEADING_WANDER_MAX_RAD = math.radians(20.0)
 _STRAIGHT_RATE_RPS = 0.05
 #: ... and below this curvature [1/m] (yaw rate over speed): a bend driven slowly turns
 #: slower than the rate above, while its course still leaves the heading by the reference
@@ -1048,6 +1059,39 @@ def _heading_bins(t_straight: F64, residual: F64) -> tuple[F64, F64]:
         return np.zeros(0), np.zeros(0)
     return (np.asarray(ndimage.median(residual, labels=label, index=used), float),
             np.asarray(ndimage.mean(t_straight, labels=label, index=used), float))
+
+
+def _heading_settled(t_straight: F64, residual: F64) -> float | None:
+    """The time [s] by which an Odometry heading that started far off the course over
+    ground had settled, or None where it did not start so.
+
+    Why: a single-antenna INS aligns its heading by driving, starting 8-15 deg off and
+    converging over a minute (a thirty-third probe: called a wander of 2-4 deg, the first
+    bins beyond the wander's old 5 deg limit left out, 0.13-0.18 deg of rotation against
+    0.02-0.06). Its ``_HEADING_WANDER_BIN_S`` medians of heading minus course
+    (``residual`` at the straight moving samples ``t_straight``) are furthest from their
+    final level in the first bin, by more than ``_HEADING_SETTLE_MIN_RAD``; settled is the
+    first bin within a third of that.
+    """
+    if t_straight.size < 2 * _HEADING_WANDER_MIN_SAMPLES:
+        return None
+    medians, centres = _heading_bins(t_straight, residual)
+    if medians.size < 4:
+        return None
+    medians = ndimage.median_filter(medians, size=3, mode='nearest')
+    level = float(np.median(medians[medians.size // 2:]))
+    size = np.abs(medians - level)
+    if (int(np.argmax(size)) != 0 or size[0] < _HEADING_SETTLE_MIN_RAD
+            or size[0] > _HEADING_WANDER_MAX_RAD):
+        return None
+    within = size < size[0] / 3.0
+    if not within.any():
+        return None
+    return float(centres[int(np.argmax(within))])
+
+
+#: Least start-up offset of the heading that ``_heading_settled`` names [rad].
+_HEADING_SETTLE_MIN_RAD = math.radians(2.0)
 
 
 def _heading_wander(t_straight: F64, residual: F64, t: F64, counters: Counter[str]
@@ -1071,8 +1115,8 @@ def _heading_wander(t_straight: F64, residual: F64, t: F64, counters: Counter[st
     medians, centres = _heading_bins(t_straight, residual)
     if medians.size < 2:
         return None
-    # a heading further off is no drift but a broken orientation (an INS still aligning
-    # writes the identity): what judges the orientation as a whole sees to it
+    # a heading further off is no drift or start-up but a broken orientation (an INS still
+    # aligning writes the identity): what judges the orientation as a whole sees to it
     small = np.abs(medians) <= _HEADING_WANDER_MAX_RAD
     if small.sum() < 3:
         return None
@@ -1084,8 +1128,14 @@ def _heading_wander(t_straight: F64, residual: F64, t: F64, counters: Counter[st
         return None
     counters['odometry_heading_wander_cdeg'] = int(round(100.0 * math.degrees(
         float(np.max(np.abs(medians))))))
-    _LOG.warning('the Odometry heading wanders by up to %.1f deg from the vehicle\'s course '
-                 'over ground: followed', math.degrees(float(np.max(np.abs(medians)))))
+    if counters.get('odometry_heading_settled_s'):
+        _LOG.warning('the Odometry heading starts %.1f deg off the vehicle\'s course over '
+                     'ground and settles within %d s: followed',
+                     math.degrees(float(np.max(np.abs(medians)))),
+                     counters['odometry_heading_settled_s'])
+    else:
+        _LOG.warning('the Odometry heading wanders by up to %.1f deg from the vehicle\'s '
+                     'course over ground: followed', math.degrees(float(np.max(np.abs(medians)))))
     return np.interp(t, centres, medians)
 
 

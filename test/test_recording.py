@@ -1619,6 +1619,30 @@ def test_a_wandering_ins_heading_is_followed_by_the_course_over_ground(
         assert np.median(off) < 0.05
 
 
+@pytest.mark.parametrize('start_deg', [8.0, 15.0])
+def test_an_ins_heading_still_converging_after_start_up_is_followed_and_named(
+        start_deg: float) -> None:
+    """A single-antenna INS starts 8-15 deg off and converges over a minute (a thirty-third
+    probe: called a wander of 2-4 deg, its first bins beyond 5 deg left uncorrected, the
+    rotation three times the baseline's). Followed by the course over ground where it is
+    straight, and named as a start-up, not a wander."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    def error(t: np.ndarray) -> np.ndarray:
+        return np.radians(start_deg * np.exp(-(t - t.min()) / 40.0))
+
+    rec = _weaving_fixes(300.0, [], True, yaw_swing=(0.3, 60.0), heading_error=error).build()
+    t = (rec.vehicle.stamps_ns - T0) / 1e9
+    truth = 0.3 * np.sin(2 * np.pi * t / 60.0)
+    off = np.degrees(np.abs(_wrap(rec.vehicle.yaw_rad - truth)))
+    # a 10 s bin's median lags a decay of 40 s: within a degree from the first bin on
+    assert np.median(off) < 0.15 and off[t > 15.0].max() < 1.0
+    assert rec.counters['odometry_heading_wander_cdeg'] > 100 * 0.6 * start_deg
+    assert 20 <= rec.counters['odometry_heading_settled_s'] <= 90
+    notes = [n for n in _data_notes(rec, []) if 'Odometry heading' in n]
+    assert len(notes) == 1 and 'settled within' in notes[0] and 'wanders' not in notes[0]
+
+
 def _moving_scans(n_scans: int, interval_ns: int, seed: int = 5) -> list[RadarFrame]:
     """Scans of three cars driving away from the radar at 8-12 m/s (five targets each,
     scattered over a metre) and a little static clutter, ``interval_ns`` apart from 1 s
