@@ -728,6 +728,12 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'turning round at a standstill, with no Odometry orientation to say which '
                      f'way it faced{how}; there it was taken to face against its travel. '
                      'Record the INS Odometry, or drive forwards through the view.')
+    if recording.counters.get('radar_frames_velocity_components'):
+        notes.append('The radar\'s clouds carry velocity components (vx, vy: an object list?) '
+                     'rather than a radial velocity: the radial velocity was taken as their '
+                     'projection on each target\'s line of sight. An object list\'s points '
+                     'are where its tracker puts each object, not where the radar saw it: '
+                     'record the radar\'s detections where it offers them.')
     if not recording.has_elevation:
         notes.append('The radar reports no elevation (z = 0 for every target: a 2-D radar): '
                      'its roll and pitch cannot be measured from its targets and are reported '

@@ -275,6 +275,8 @@ class RecordingBuilder:
         self.counters['targets'] += n
         if frame.dropped_nonfinite:
             self.counters['targets_nonfinite'] += frame.dropped_nonfinite
+        if frame.velocity_components:
+            self.counters['radar_frames_velocity_components'] += 1
 
     def note_receipt(self, role: str, stamp_ns: int, received_ns: int) -> None:
         """Record when a message of ``role`` ('radar', 'navsat' or 'odom') with this header

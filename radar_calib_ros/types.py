@@ -41,6 +41,8 @@ class RadarFrame:
     dropped_nonfinite : points with NaN/inf in a used field, left out;
     invalid_declared : the message said it may hold such points (PointCloud2 ``is_dense``
         false: a driver's invalid points, not a fault)
+    velocity_components : the fields whose projection on the line of sight gave the radial
+        velocity (an object list's vx, vy), empty where the radar gave it
     """
 
     stamp_ns: int
@@ -48,6 +50,7 @@ class RadarFrame:
     radial_velocity_mps: F64
     dropped_nonfinite: int = 0
     invalid_declared: bool = False
+    velocity_components: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

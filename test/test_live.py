@@ -341,7 +341,8 @@ def _bad_radar(store: Any, kind: str) -> Any:
     elif kind == 'no_velocity_field':
         message = radar_msg(store, T0_NS + 10**9, 10, velocity_field='intensity')
     elif kind == 'no_position_fields':
-        message.fields = [f for f in message.fields if f.name != 'z']
+        # (without z alone it is a 2-D radar's cloud, read level)
+        message.fields = [f for f in message.fields if f.name != 'y']
     elif kind == 'datatype':
         message.fields[0].datatype = 99
     elif kind == 'no_stamp':

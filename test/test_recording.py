@@ -627,6 +627,22 @@ def test_a_drive_mostly_in_rtk_float_rests_on_its_rtk_fixed_part(
     assert 'SBAS, DGPS' not in notes
 
 
+@pytest.mark.parametrize('components', [(), ('vx', 'vy')])
+def test_radial_velocities_from_velocity_components_are_named(
+        components: tuple[str, ...]) -> None:
+    """Frames whose radial velocity was projected from an object list's vx, vy are counted
+    and named in the notes; a radar's own Doppler is not."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    builder = _straight_fixes([2] * 20)
+    builder.add_radar_frame(RadarFrame(T0, np.array([[5.0, 1.0, 0.0]]), np.ones(1),
+                                       velocity_components=components))
+    rec = builder.build()
+    notes = [n for n in _data_notes(rec, []) if 'velocity components' in n]
+    assert rec.counters.get('radar_frames_velocity_components', 0) == (1 if components else 0)
+    assert len(notes) == (1 if components else 0)
+
+
 def test_an_rtk_drive_gets_no_gnss_note() -> None:
     from radar_calib_ros.pipeline import _data_notes
 

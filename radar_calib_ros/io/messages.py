@@ -53,6 +53,12 @@ VELOCITY_FIELD_NAMES = ('velocity', 'radial_velocity', 'radial_speed', 'doppler'
 #: clouds carry x, y, z anyway.
 SPHERICAL_FIELD_NAMES = (('range',), ('azimuth', 'azimuth_angle'),
                          ('elevation', 'elevation_angle'))
+#: Velocity components in the sensor frame, used where a cloud has no radial velocity:
+#: an object list's (a tracker's output gives each object's velocity, not a Doppler), its
+#: radial velocity their projection on the line of sight. The z component is optional
+#: (road users move level).
+VELOCITY_COMPONENT_NAMES = (('vx', 'vy', 'vz'), ('velocity_x', 'velocity_y', 'velocity_z'),
+                            ('vel_x', 'vel_y', 'vel_z'), ('v_x', 'v_y', 'v_z'))
 
 # sensor_msgs/msg/PointField datatype constants -> numpy type codes (byte order added later)
 _POINTFIELD_TYPES: dict[int, str] = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4',
@@ -199,7 +205,7 @@ def lacks_velocity_field(msg: Any, velocity_field: str = '') -> bool:
         return False
     if velocity_field:
         return _field_named(table, velocity_field) is None
-    return _velocity_field_among(table) is None
+    return _velocity_field_among(table) is None and _velocity_components_among(table) is None
 
 
 def _velocity_field_among(table: Mapping[str, tuple[int, int]]) -> str | None:
@@ -209,6 +215,16 @@ def _velocity_field_among(table: Mapping[str, tuple[int, int]]) -> str | None:
         found = _field_named(table, name)
         if found is not None and not (name == 'v' and _field_named(table, 'u') is not None):
             return found
+    return None
+
+
+def _velocity_components_among(table: Mapping[str, tuple[int, int]]) -> tuple[str, ...] | None:
+    """The first complete set of ``VELOCITY_COMPONENT_NAMES`` the cloud has (x and y, and z
+    where present), else None."""
+    for names in VELOCITY_COMPONENT_NAMES:
+        found = [_field_named(table, name) for name in names]
+        if found[0] is not None and found[1] is not None:
+            return tuple(str(name) for name in found if name is not None)
     return None
 
 
@@ -229,8 +245,8 @@ def _choose_velocity_field(table: Mapping[str, tuple[int, int]], velocity_field:
             "carries the radial velocity in 'intensity': if so, set radar.velocity_field: "
             'intensity' if _field_named(table, 'intensity') is not None else '')
     raise DecodeError(f'PointCloud2 has no radial-velocity field (looked for '
-                      f'{", ".join(VELOCITY_FIELD_NAMES)}; set radar.velocity_field); fields '
-                      f'found: {_fields_listing(table)}{hint}')
+                      f'{", ".join(VELOCITY_FIELD_NAMES)}, or velocity components vx, vy; set '
+                      f'radar.velocity_field); fields found: {_fields_listing(table)}{hint}')
 
 
 def _numpy_code(name: str, datatype: int, *, float_only: bool) -> str:
@@ -280,25 +296,37 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
     cartesian = [_field_named(table, name) for name in ('x', 'y', 'z')]
     polar = [next((found for found in (_field_named(table, name) for name in names)
                    if found is not None), None) for names in SPHERICAL_FIELD_NAMES]
-    if None not in cartesian:
-        position_names, spherical = tuple(str(n) for n in cartesian), False
-    elif None not in polar:
-        position_names, spherical = tuple(str(n) for n in polar), True
+    # A 2-D radar's cloud may leave out the third coordinate (x, y; or range, azimuth)
+    # rather than write z = 0: read as level, as z = 0 is (an independent probe's range,
+    # azimuth, doppler cloud was refused while the same targets as x, y, 0 calibrated)
+    if None not in cartesian[:2]:
+        position_names, spherical = cartesian, False
+    elif None not in polar[:2]:
+        position_names, spherical = polar, True
     else:
         raise DecodeError('PointCloud2 has neither x/y/z nor range/azimuth/elevation fields; '
                           f'fields found: {_fields_listing(table)}')
-    v_name = _choose_velocity_field(table, velocity_field)
+    components: tuple[str, ...] = ()
+    if velocity_field or _velocity_field_among(table) is not None:
+        v_names: tuple[str, ...] = (_choose_velocity_field(table, velocity_field),)
+    else:
+        components = _velocity_components_among(table) or ()
+        if not components:
+            _choose_velocity_field(table, velocity_field)     # raises, naming the fields
+        v_names = components
     extent = _fields_extent(fields)
     if point_step < extent:
         raise DecodeError(f'PointCloud2 point_step {point_step} is smaller than its fields '
                           f'({extent} bytes)')
     order = '>' if msg.is_bigendian else '<'
-    names = [*position_names, v_name]
-    formats = [order + _numpy_code(name, table[name][1], float_only=name != v_name)
-               for name in names]
+    columns = [(key, str(name)) for key, name in zip(('p0', 'p1', 'p2'), position_names)
+               if name is not None]
+    columns += [(f'v{i}', name) for i, name in enumerate(v_names)]
+    formats = [order + _numpy_code(name, table[name][1], float_only=not key.startswith('v'))
+               for key, name in columns]
     try:
-        dtype = np.dtype({'names': ['p0', 'p1', 'p2', 'v'], 'formats': formats,
-                          'offsets': [table[name][0] for name in names],
+        dtype = np.dtype({'names': [key for key, _ in columns], 'formats': formats,
+                          'offsets': [table[name][0] for _, name in columns],
                           'itemsize': point_step})
     except (ValueError, OverflowError) as err:
         # numpy keeps itemsize and offsets in a C int; no real cloud comes near 2 GiB a point
@@ -326,12 +354,14 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
         # signalling NaNs (corrupt data) warn when cast; they are dropped below as non-finite
         p0 = points['p0'].astype(np.float64)
         p1 = points['p1'].astype(np.float64)
-        p2 = points['p2'].astype(np.float64)
-        velocity = points['v'].astype(np.float64)
-    finite = np.isfinite(p0) & np.isfinite(p1) & np.isfinite(p2) & np.isfinite(velocity)
+        p2 = (points['p2'].astype(np.float64) if 'p2' in points.dtype.names
+              else np.zeros(p0.size))
+        v = np.column_stack([points[f'v{i}'].astype(np.float64) for i in range(len(v_names))])
+    finite = (np.isfinite(p0) & np.isfinite(p1) & np.isfinite(p2)
+              & np.all(np.isfinite(v), axis=1))
     dropped = int(n - np.count_nonzero(finite))
     if dropped:
-        p0, p1, p2, velocity = p0[finite], p1[finite], p2[finite], velocity[finite]
+        p0, p1, p2, v = p0[finite], p1[finite], p2[finite], v[finite]
     if spherical:
         if p1.size and (np.abs(p1).max() > math.pi + 1e-6
                         or np.abs(p2).max() > math.pi / 2 + 1e-6):
@@ -346,8 +376,17 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
                                      p0 * np.sin(p2)])
     else:
         positions = np.column_stack([p0, p1, p2])
+    if components:
+        # the radar stands still: the velocity it gives is the object's, and what it would
+        # have measured is its projection on the line of sight, positive moving away
+        rng = np.linalg.norm(positions, axis=1)
+        along = np.einsum('ij,ij->i', positions[:, :v.shape[1]], v)
+        velocity = np.divide(along, rng, out=np.zeros_like(along), where=rng > 0.0)
+    else:
+        velocity = v[:, 0]
     return RadarFrame(stamp, positions, velocity, dropped_nonfinite=dropped,
-                      invalid_declared=not bool(getattr(msg, 'is_dense', True)))
+                      invalid_declared=not bool(getattr(msg, 'is_dense', True)),
+                      velocity_components=components)
 
 
 def decode_radarscan(msg: Any) -> RadarFrame:

@@ -298,10 +298,11 @@ def test_error_point_step_smaller_than_fields(ts: Any) -> None:
 
 
 def test_error_no_positions(ts: Any) -> None:
-    fields = [('x', 0, FLOAT32), ('y', 4, FLOAT32), ('range', 8, FLOAT32),
+    # (x, y without z is a 2-D radar's, read level: see the test above)
+    fields = [('x', 0, FLOAT32), ('z', 4, FLOAT32), ('range', 8, FLOAT32),
               ('velocity', 12, FLOAT32)]
     with pytest.raises(DecodeError, match='neither x/y/z nor range/azimuth/elevation.*'
-                       'x, y, range, velocity'):
+                       'x, z, range, velocity'):
         m.decode_pointcloud(hand_cloud(ts, fields, POINTS, point_step=16))
 
 
@@ -447,3 +448,56 @@ def test_msg_schemas_readme_names_every_definition() -> None:
     readme = (directory / 'README.md').read_text(encoding='utf-8')
     files = sorted(p.name for p in directory.glob('*.msg'))
     assert files and all(f'`{name}`' in readme for name in files)
+
+
+@pytest.mark.parametrize('names', [('vx', 'vy'), ('vx', 'vy', 'vz'),
+                                   ('velocity_x', 'velocity_y', 'velocity_z')])
+def test_velocity_components_give_the_radial_velocity(ts: Any, names: tuple[str, ...]) -> None:
+    """An object list gives each object's velocity in the sensor frame, no Doppler (an
+    independent probe's vx, vy cloud was refused, and naming vx as the velocity field
+    calibrated nothing): the radial velocity is its projection on the line of sight."""
+    fields = [(n, i * 4, FLOAT32) for i, n in enumerate(('x', 'y', 'z', *names))]
+    velocity = [(10.0, 0.0, 0.0), (0.0, -5.0, 0.0), (3.0, 4.0, 1.0)]
+    points = [dict(p, **dict(zip(names, v))) for p, v in zip(POINTS, velocity)]
+    frame = m.decode_pointcloud(hand_cloud(ts, fields, points, point_step=4 * len(fields)))
+    xyz = frame.positions_m
+    v = np.array(velocity)[:, :len(names)]
+    expected = np.sum(xyz[:, :len(names)] * v, axis=1) / np.linalg.norm(xyz, axis=1)
+    np.testing.assert_allclose(frame.radial_velocity_mps, expected, rtol=1e-6)
+    assert frame.velocity_components == names
+    # a radial velocity beside the components is the radar's own: taken as it is
+    with_radial = [*fields, ('velocity', 4 * len(fields), FLOAT32)]
+    frame = m.decode_pointcloud(hand_cloud(ts, with_radial, points,
+                                           point_step=4 * len(with_radial)))
+    np.testing.assert_array_equal(frame.radial_velocity_mps, VEL)
+    assert frame.velocity_components == ()
+
+
+def test_a_lone_velocity_component_is_no_radial_velocity(ts: Any) -> None:
+    """vx without vy is not a velocity the line of sight can be projected on: refused,
+    naming what was looked for."""
+    fields = [('x', 0, FLOAT32), ('y', 4, FLOAT32), ('z', 8, FLOAT32), ('vx', 12, FLOAT32)]
+    with pytest.raises(DecodeError, match='velocity components vx, vy'):
+        m.decode_pointcloud(hand_cloud(ts, fields, POINTS, point_step=16))
+    assert m.lacks_velocity_field(hand_cloud(ts, fields, POINTS, point_step=16))
+
+
+@pytest.mark.parametrize('layout', [('x', 'y'), ('range', 'azimuth')])
+def test_a_2d_radar_without_its_third_coordinate_is_read_level(
+        ts: Any, layout: tuple[str, str]) -> None:
+    """A 2-D radar's cloud of x, y (or range, azimuth) and a Doppler, without z or
+    elevation (an independent probe's range, azimuth, doppler was refused while the same
+    targets as x, y, 0 calibrated): read with z = 0."""
+    fields = [(layout[0], 0, FLOAT32), (layout[1], 4, FLOAT32), ('doppler', 8, FLOAT32)]
+    if layout == ('x', 'y'):
+        points = [{'x': 10.0, 'y': -2.0, 'doppler': 1.5}]
+    else:
+        points = [{'range': 10.0, 'azimuth': -0.2, 'doppler': 1.5}]
+    frame = m.decode_pointcloud(hand_cloud(ts, fields, points, point_step=12))
+    expected = ([10.0, -2.0, 0.0] if layout == ('x', 'y')
+                else [10.0 * math.cos(-0.2), 10.0 * math.sin(-0.2), 0.0])
+    np.testing.assert_allclose(frame.positions_m, [expected], atol=1e-5)
+    np.testing.assert_array_equal(frame.radial_velocity_mps, [1.5])
+    with pytest.raises(DecodeError, match='neither x/y/z'):
+        m.decode_pointcloud(hand_cloud(ts, [('x', 0, FLOAT32), ('doppler', 4, FLOAT32)],
+                                       [{'x': 1.0, 'doppler': 0.0}], point_step=8))
