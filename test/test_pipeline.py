@@ -87,7 +87,8 @@ def test_no_agreement_also_tries_the_fixes_own_clock_beyond_the_bound(
     tried = _fake_stage6(monkeypatch, {})
     with pytest.raises(InsufficientDataError):
         pipeline._hypotheses((), within, None, _config())  # type: ignore[arg-type]
-    near = [t for t in tried if abs(t) < 1.0]  # the leap seconds' tries lie further out
+    # the tries beyond the bound (named only) and the leap seconds' lie further out
+    near = [t for t in tried if abs(t) <= 0.25 + 1e-9]
     assert sorted(near) == pytest.approx(sorted([0.0] + [s * k * 0.05 for k in range(1, 6)
                                                          for s in (1, -1)]))
 
@@ -150,6 +151,43 @@ def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
     with pytest.raises(InsufficientDataError) as err:
         pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
     assert 'leap' not in str(err.value)
+
+
+def test_agreement_only_beyond_the_bound_is_named_not_taken(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Radar stamps 0.6 s late (a driver stamping at publication, an object tracker's
+    latency): stage 6 agrees only there, beyond sync.max_time_offset. The failure names the
+    offset with the most agreeing tracks and what to set (a thirty-fifth probe's were
+    refused with 'hypotheses do not agree' alone); other road users agreeing by chance
+    there (the vehicle not seen where they put it) get no hint."""
+    tried = _fake_stage6(monkeypatch, {-0.55: 3, -0.6: 6, -0.65: 4})
+    seen = {'vehicle': True}
+
+    def detection(extrinsics: Any, recording: Any, config: CalibConfig) -> float:
+        if not seen['vehicle']:
+            raise InsufficientDataError('quality', 'does not explain the vehicle')
+        return 1.0
+    monkeypatch.setattr(pipeline.quality, 'check_vehicle_detection', detection)
+    with pytest.raises(InsufficientDataError,
+                       match=r'shifted by -0.60 s, beyond sync.max_time_offset \(0.25 s\).*'
+                             r'Set sync.time_offset to -0.60'):
+        pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
+    assert -1.0 in tried and 1.0 in tried and 0.3 in tried
+    seen['vehicle'] = False
+    with pytest.raises(InsufficientDataError) as err:
+        pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
+    assert 'beyond sync.max_time_offset' not in str(err.value)
+
+
+def test_a_fit_past_the_search_limit_the_way_stage_6_went_is_the_clocks() -> None:
+    """Stage 6 agreed at its limit and the fit went on the same way: the clocks are further
+    apart than the search (named as such, not as vehicle.* or sparse poses); the other way,
+    or within the bound, it is not."""
+    assert pipeline._beyond_search(-0.25, -0.40, 0.25)
+    assert not pipeline._beyond_search(-0.25, 0.40, 0.25)
+    assert not pipeline._beyond_search(-0.10, -0.40, 0.25)
+    assert not pipeline._beyond_search(-0.25, -0.20, 0.25)
+    assert not pipeline._beyond_search(0.0, 0.42, 0.25)
 
 
 def _recording(fix_period_s: float, radar_start_s: float = 0.0, status: int = 2,
