@@ -1458,6 +1458,16 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
     # The contract's v_r convention is a range rate; where the radar's is the opposite, the
     # paper's stages never noticed (they use |v_r| or compare v_r with v_r) but the final
     # fit and the detection check would be fooled: judge it on the vehicle, flip, and say so.
+    speed = quality.velocity_is_speed(current, recording, config)
+    if speed is not None:
+        raise InsufficientDataError(
+            'quality', f'the radar\'s velocities are the vehicle\'s speed, not its radial '
+            f'velocity: near the vehicle {speed[1]} targets carry its speed where its motion '
+            f'along the line of sight differs, {speed[0]} that motion (an object list whose '
+            'velocity is each object\'s speed?). The calibration needs the radial velocity '
+            '(the Doppler): record the radar\'s detections, or the objects\' velocity '
+            'components vx, vy in the sensor frame (projected onto the line of sight), and '
+            'calibrate again')
     factor, n_same, n_other = quality.radial_velocity_convention(current, recording, config)
     sign = 1.0 if factor > 0 else -1.0
     if factor != 1.0:

@@ -685,6 +685,33 @@ _SIGN_MIN_MATCHES = 20
 _SIGN_DOMINANCE = 3.0
 
 
+def velocity_is_speed(extrinsics: Extrinsics, recording: Recording,
+                      config: CalibConfig) -> tuple[int, int] | None:
+    """(targets matching the radial velocity, targets matching the speed) near the
+    vehicle's box where its targets' velocities are its speed (signed or not) rather than
+    its radial velocity, else None.
+
+    Why: an object list's velocity field may hold each object's speed (a tracker's
+    output), which no rigid motion projects onto the line of sight: a thirty-fifth probe's
+    such lists were refused in 4 of 6 recordings as 'never in view' or 'folded, scaled or
+    flipped', and the other 2 came out 0.8-0.9 m low and 0.7-1.0 deg off without a word.
+    Only the targets whose radial velocity differs from the speed tell the two apart (seen
+    from the side, or off the line of travel).
+    """
+    view = _vehicle_in_view(extrinsics, recording, config)
+    if view is None:
+        return None
+    tolerance = _CHECK_VR_TOLERANCE_MPS
+    telling = np.abs(np.abs(view.predicted_vr) - view.speed_mps) > 2.0 * tolerance
+    radial = int(np.count_nonzero(telling & (np.abs(view.measured_vr - view.predicted_vr)
+                                             < tolerance)))
+    speed = int(np.count_nonzero(telling & (np.abs(np.abs(view.measured_vr) - view.speed_mps)
+                                            < tolerance)))
+    if speed >= _SIGN_MIN_MATCHES and speed >= _SIGN_DOMINANCE * radial:
+        return radial, speed
+    return None
+
+
 #: Factors a radar's radial velocities may carry against the contract's range rate in m/s:
 #: the sign (approach positive), and km/h.
 _VR_FACTORS = (-1.0, 3.6, -3.6)
@@ -743,7 +770,8 @@ class VehicleInView:
     index, frames : the targets of those frames near its box and their frames;
     measured_vr, predicted_vr : their radial velocities, measured and as the vehicle's
         motion predicts;
-    reach_m : horizontal range out to which the radar shows the vehicle.
+    reach_m : horizontal range out to which the radar shows the vehicle;
+    speed_mps : the vehicle's speed at each of those targets' frames.
     """
 
     checked: np.ndarray
@@ -752,6 +780,7 @@ class VehicleInView:
     measured_vr: F64
     predicted_vr: F64
     reach_m: float
+    speed_mps: F64
 
 
 def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
@@ -800,7 +829,8 @@ def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: Calib
         return None
     keep = checked[view_in.frames]
     return VehicleInView(checked, view_in.index[keep], view_in.frames[keep],
-                         view_in.measured_vr[keep], view_in.predicted_vr[keep], reach)
+                         view_in.measured_vr[keep], view_in.predicted_vr[keep], reach,
+                         view_in.speed_mps[keep])
 
 
 def _near_box_targets(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
@@ -824,7 +854,8 @@ def _near_box_targets(extrinsics: Extrinsics, recording: Recording, config: Cali
     index, frames, world = (np.concatenate(part) for part in zip(*picked))
     predicted_vr = metrics.rigid_radial_velocity(world, extrinsics, poses.velocities_mps[frames])
     return VehicleInView(checked, index, frames, targets.radial_velocity_mps[index],
-                         predicted_vr, reach_m)
+                         predicted_vr, reach_m,
+                         np.linalg.norm(poses.velocities_mps[frames], axis=1))
 
 
 def check_vehicle_detection(extrinsics: Extrinsics, recording: Recording,

@@ -157,6 +157,31 @@ def test_radial_velocity_convention_is_judged_on_the_vehicle(factor: float) -> N
     assert radial_velocity_convention(truth, with_vr(0.0), scene.config)[0] == 1.0
 
 
+@pytest.mark.parametrize('signed', [True, False])
+def test_velocities_that_are_the_vehicles_speed_are_told_from_radial_ones(signed: bool) -> None:
+    """An object list whose velocity field holds each object's speed (signed by approach,
+    or not) instead of the radial velocity (a thirty-fifth probe: refused as 'never in
+    view' or put 0.8-0.9 m low, naming neither): told on the vehicle's targets where its
+    motion along the line of sight differs from its speed; radial ones are not."""
+    from radar_calib_ros.core.hypotheses import pose_stamps_ns
+    from radar_calib_ros.core.quality import velocity_is_speed
+    from radar_calib_ros.recording import interpolate_poses
+    from refine_scene import make_scene
+
+    scene = make_scene(5, time_offset_s=0.0)
+    truth = Extrinsics(scene.truth.rotation, scene.truth.translation_m, 0.0)
+    rec = scene.recording
+    assert velocity_is_speed(truth, rec, scene.config) is None
+    stamps = pose_stamps_ns(rec.frame_stamps_ns, scene.config.sync.time_offset)
+    poses = interpolate_poses(rec.vehicle, stamps, scene.config.sync.max_pose_gap)
+    speed = np.linalg.norm(poses.velocities_mps, axis=1)[rec.targets.frame_index]
+    vr = rec.targets.radial_velocity_mps
+    as_speed = np.where(np.abs(vr) > 0.5, (np.sign(vr) if signed else 1.0) * speed, vr)
+    spoken = replace(rec, targets=replace(rec.targets, radial_velocity_mps=as_speed))
+    found = velocity_is_speed(truth, spoken, scene.config)
+    assert found is not None and found[1] > 100 and found[0] < 0.1 * found[1]
+
+
 def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None:
     scene = make_scene(n_passes=5)
     rec = scene.recording
