@@ -92,7 +92,7 @@ from radar_calib_ros.core.refine_clock import (_clock_drift, _clock_step, _mid_r
 from radar_calib_ros.core.refine_covariance import (
     _VELOCITY_SUSPECTS, _check_not_diverged, _Diverged, _halves_disagreement, _halves_shift,
     _height_difference_shift, _height_shift, _lane_separation, _line_axis, _pose_block,
-    _position_spread, _range_bands, _start_term, _turn_between_passes,
+    _position_spread, _range_bands, _start_term, _turn_between_passes, _yaw_step_between_passes,
     along_boresight_share, start_error_m)
 from radar_calib_ros.core.refine_diagnostics import _diagnostics
 from radar_calib_ros.core.refine_model import (
@@ -802,11 +802,16 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         cov7[:6, :6] += np.outer(halves_shift[:6], halves_shift[:6])
     diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
                                config, fit, rounds, scatter)
+    turn = (_turn_between_passes(pc, jp.T @ jp, cov7, data, recording, est, config)
+            if halves is not None else None)
+    if turn is None:
+        turn = _yaw_step_between_passes(j * w[:, None], r * w, jp,
+                                        model.residuals(x_hat, jac=False)[2], data,
+                                        pc.n_passes, recording, est, config)
+    if turn is not None:
+        diagnostics['mount_turn'] = turn
     if halves is not None:
         diagnostics['halves_rotation_deg'], diagnostics['halves_translation_m'] = halves
-        turn = _turn_between_passes(pc, jp.T @ jp, cov7, data, recording, est, config)
-        if turn is not None:
-            diagnostics['mount_turn'] = turn
         diagnostics['advice'] = [
             f'The first and the second half of the drives disagree by {halves[0]:.2f} deg and '
             f'{100 * halves[1]:.0f} cm, far beyond their uncertainty: the radar may have moved '

@@ -14,6 +14,7 @@ per-pass terms (``uncertainty.PassCovariance``), never inside it.
 """
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -25,6 +26,8 @@ from radar_calib_ros.core.refine_model import (_START_SIGMA_M, _change, _Model, 
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.types import F64, I64, Extrinsics, MountTurn
+
+_LOG = logging.getLogger(__name__)
 
 
 # --- the range bands of the second jackknife --------------------------------------------
@@ -162,6 +165,106 @@ def _turn_between_passes(passes: uncertainty.PassCovariance, prior_hessian: F64,
                                       gap, config.sync.time_offset + estimate.time_offset_s)
     yaw, tilt = math.degrees(step[2]), math.degrees(math.hypot(step[0], step[1]))
     return MountTurn(at_ns, gap, yaw, k, n - k, tilt)
+
+
+#: A step in the passes' yaw (``_yaw_step_between_passes``) is a turn of the mount from
+#: this many standard errors of the step, and this size [deg], on.
+_YAW_STEP_Z = 6.0
+_YAW_STEP_MIN_DEG = 0.3
+
+
+def _pass_yaws(jacobian: F64, residuals: F64, data: _Selected, n_passes: int
+               ) -> tuple[F64, F64]:
+    """(G,) each pass's yaw [rad] from its radial velocities alone, all else held at the
+    fit (one Gauss-Newton step on the yaw column of the velocity rows), and its weight
+    (the inverse variance, from the whitened rows). ``jacobian`` and ``residuals`` are
+    the weighted rows of the fit: 3n position rows, then n velocity rows."""
+    n = data.index.size
+    column = jacobian[3 * n:, 2]
+    rows = residuals[3 * n:]
+    hessian = np.bincount(data.pass_id, column * column, n_passes)
+    gradient = np.bincount(data.pass_id, column * rows, n_passes)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        yaw = -gradient / hessian
+    return yaw, hessian
+
+
+def _yaw_change(jacobian: F64, residuals: F64, prior_jacobian: F64, prior_residuals: F64,
+                data: _Selected, k: int) -> float:
+    """The yaw [rad] of the passes from ``k`` on less that of those before, every other
+    parameter shared and fitted with it (one Gauss-Newton step from the blended fit: the
+    passes' own yaws, each with all else held at the blend, show about half of it)."""
+    later = np.concatenate([np.repeat(data.pass_id, 3), data.pass_id]) >= k
+    extra = np.where(later, jacobian[:, 2], 0.0)
+    full = np.column_stack([jacobian, extra])
+    prior = np.column_stack([prior_jacobian, np.zeros(prior_jacobian.shape[0])])
+    hessian = full.T @ full + prior.T @ prior
+    gradient = full.T @ residuals + prior.T @ prior_residuals
+    return float(-np.linalg.lstsq(hessian, gradient, rcond=None)[0][-1])
+
+
+def _yaw_step(yaw: F64, weight: F64, least: int) -> int | None:
+    """The first pass after a step in the passes' yaws (``yaw`` (G,) [rad], ``weight`` their
+    inverse variances), where the step is ``_YAW_STEP_Z`` standard errors and
+    ``_YAW_STEP_MIN_DEG`` or more with at least ``least`` passes on each side, else None.
+    The standard error grows with the passes' scatter about their side's mean beyond their
+    formal errors (passes whose yaw the radial velocities measure less well than they
+    say)."""
+    n = yaw.size
+    if n < 2 * least or not (np.all(np.isfinite(yaw)) and np.all(weight > 0.0)):
+        return None
+    best: tuple[float, int, float] | None = None
+    for k in range(least, n - least + 1):
+        sides = [slice(0, k), slice(k, n)]
+        means = [float(np.average(yaw[side], weights=weight[side])) for side in sides]
+        chi2 = sum(float(np.sum(weight[side] * (yaw[side] - mean) ** 2))
+                   for side, mean in zip(sides, means))
+        scale2 = max(1.0, chi2 / (n - 2))
+        step = means[1] - means[0]
+        z = abs(step) / math.sqrt(scale2 * sum(1.0 / float(weight[side].sum())
+                                               for side in sides))
+        if best is None or z > best[0]:
+            best = (z, k, step)
+    assert best is not None
+    z, k, step = best
+    _LOG.debug('passes\' own yaws %s deg: largest step %+.2f deg after pass %d (%.1f standard '
+               'errors)', np.round(np.degrees(yaw), 2).tolist(), math.degrees(step), k, z)
+    if z < _YAW_STEP_Z or abs(math.degrees(step)) < _YAW_STEP_MIN_DEG:
+        return None
+    return k
+
+
+def _yaw_step_between_passes(jacobian: F64, residuals: F64, prior_jacobian: F64,
+                             prior_residuals: F64, data: _Selected, n_passes: int,
+                             recording: Recording, estimate: Extrinsics,
+                             config: CalibConfig) -> MountTurn | None:
+    """A turn of the mount about the vertical between two passes, seen as a step in the
+    passes' own yaws (``_pass_yaws``), else None.
+
+    Why: the predicted radial velocities depend on the rotation and the clock, not on where
+    the radar stands or on which part of the car reflected, so each pass measures the yaw
+    on its own to a tenth of a degree, whatever the reflection model. A knock of the mount
+    between passes makes those yaws step; the halves check (``_halves_disagreement``)
+    compares the whole fit's halves against the reported uncertainty, whose model terms
+    the halves share, and missed every 1.5 deg knock of a thirty-sixth probe (the result
+    between the two mounts: 0.4-0.8 m and 0.25-0.75 deg off the mount as it is now). The
+    step is taken where it is largest against the passes' scatter on either side (a fit
+    that blends two mounts leaves each side at about half the turn), with at least
+    ``hypotheses.min_passes`` passes on each.
+    """
+    yaw, weight = _pass_yaws(jacobian, residuals, data, n_passes)
+    found = _yaw_step(yaw, weight, config.hypotheses.min_passes)
+    if found is None:
+        return None
+    k = found
+    stamps = recording.stamps_of(data.index)
+    gap = (int(stamps[data.pass_id == k - 1].max()), int(stamps[data.pass_id == k].min()))
+    local = recording.targets.positions_m[data.index]
+    reach = float(np.hypot(local[:, 0], local[:, 1]).max()) + config.hypotheses.pass_margin_m
+    at_ns = hypotheses.turn_moment_ns(recording.vehicle, estimate.translation_m[:2], reach,
+                                      gap, config.sync.time_offset + estimate.time_offset_s)
+    change = _yaw_change(jacobian, residuals, prior_jacobian, prior_residuals, data, k)
+    return MountTurn(at_ns, gap, math.degrees(change), k, n_passes - k, 0.0)
 
 
 # --- the covariance's consider terms ----------------------------------------------------
