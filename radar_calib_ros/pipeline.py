@@ -372,6 +372,11 @@ def _beyond_search(shift_s: float, fitted_s: float, max_off: float) -> bool:
             and shift_s * fitted_s > 0.0 and abs(fitted_s) > max_off)
 
 
+#: An Odometry heading offset within this of the site's meridian convergence is taken
+#: for a yaw against the UTM grid's north [deg] (the offset is measured to 0.01-0.05 deg).
+_GRID_HEADING_TOLERANCE_DEG = 0.1
+
+
 def _shift_note(shift_s: float, fitted_s: float | None) -> str | None:
     """What stage 6's need of a clock shift says, once the final fit has its own offset
     (None: not fitted). A shift the fit confirms is the clocks'; one it does not came from
@@ -753,7 +758,19 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'ground. Check the driver\'s orientation.')
     offset_cdeg = recording.counters.get('odometry_heading_offset_cdeg', 0)
     # a few tenths are taken off silently: a good INS is aligned to about that
-    if abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG:
+    convergence = math.degrees(float(np.ravel(recording.frame.utm_convergence_rad(
+        recording.frame.lat0_deg, recording.frame.lon0_deg))[0]))
+    if (abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG
+            and abs(abs(offset_cdeg / 100) - abs(convergence)) <= _GRID_HEADING_TOLERANCE_DEG):
+        # a probe's, and two generators', yaw against the UTM grid's north was blamed on a
+        # turned INS: the offset is the site's meridian convergence
+        notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the vehicle\'s '
+                     f'course over ground throughout, the meridian convergence here '
+                     f'({abs(convergence):.2f} deg): its yaw is most likely against the UTM '
+                     'grid\'s north rather than true north (REP-103\'s ENU, as the contract '
+                     'has it). It was taken off; have the INS driver give the yaw against '
+                     'true north.')
+    elif abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG:
         notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the vehicle\'s '
                      'course over ground throughout (an INS mounted turned, or the heading of '
                      'its own frame rather than the vehicle\'s): it was taken off. Check the '

@@ -974,6 +974,25 @@ def test_a_u_turn_on_the_move_is_not_a_reversal() -> None:
     assert np.abs(_wrap(rec.vehicle.yaw_rad[west] - math.pi)).max() < math.radians(3.0)
 
 
+def test_a_heading_offset_of_the_meridian_convergence_is_named_as_a_grid_heading() -> None:
+    """An Odometry yaw against the UTM grid's north is off by the site's meridian
+    convergence (a thirty-fifth probe's, and two generators' before it, were blamed on a
+    turned INS): an offset within 0.1 deg of it says so; another offset does not."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    rec = circle_builder(written=lambda yaw: yaw + math.radians(12.0))[0].build()
+    convergence = math.degrees(float(np.ravel(rec.frame.utm_convergence_rad(
+        rec.frame.lat0_deg, rec.frame.lon0_deg))[0]))
+    assert abs(convergence) > 0.3      # the test site lies off its zone's central meridian
+    for offset_cdeg, grid in ((round(100 * convergence), True),
+                              (round(-100 * convergence) + 5, True),
+                              (round(100 * convergence) + 30, False)):
+        rec.counters['odometry_heading_offset_cdeg'] = offset_cdeg
+        notes = [n for n in _data_notes(rec, []) if 'Odometry heading is' in n]
+        assert len(notes) == 1 and ('meridian convergence' in notes[0]) == grid, notes
+        assert ('INS yaw alignment' in notes[0]) != grid
+
+
 @pytest.mark.parametrize('offset_deg', [0.5, 12.0, -6.0])
 def test_a_constant_ins_heading_offset_is_taken_off(offset_deg: float) -> None:
     """An INS mounted turned by a few degrees (below the 20 deg check that condemns an
