@@ -123,12 +123,9 @@ def test_no_agreement_anywhere_or_no_offset_estimation_keeps_the_reason(
     assert tried == [0.0]
 
 
-def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """A radar on GPS time and a vehicle on UTC: 18 s apart. Stage 6 agrees only there; the
-    failure says which sync.time_offset to set (taking it silently would leave the result's
-    clock offset unlike the user's parameters). Nowhere: the reason as before."""
-    tried = _fake_stage6(monkeypatch, {-17.95: 5})
+def _vehicle_seen_stub(monkeypatch: pytest.MonkeyPatch) -> dict[str, bool]:
+    """The detection check stubbed: the vehicle is seen where a calibration puts it while
+    the returned flag 'vehicle' is True."""
     seen = {'vehicle': True}
 
     def detection(extrinsics: Any, recording: Any, config: CalibConfig) -> float:
@@ -136,6 +133,16 @@ def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
             raise InsufficientDataError('quality', 'does not explain the vehicle')
         return 1.0
     monkeypatch.setattr(pipeline.quality, 'check_vehicle_detection', detection)
+    return seen
+
+
+def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A radar on GPS time and a vehicle on UTC: 18 s apart. Stage 6 agrees only there; the
+    failure says which sync.time_offset to set (taking it silently would leave the result's
+    clock offset unlike the user's parameters). Nowhere: the reason as before."""
+    tried = _fake_stage6(monkeypatch, {-17.95: 5})
+    seen = _vehicle_seen_stub(monkeypatch)
     with pytest.raises(InsufficientDataError,
                        match=r'shifted by -18 s, a whole number of leap seconds .* set '
                              r'sync.time_offset to -18 and calibrate again'):
@@ -161,13 +168,7 @@ def test_agreement_only_beyond_the_bound_is_named_not_taken(
     refused with 'hypotheses do not agree' alone); other road users agreeing by chance
     there (the vehicle not seen where they put it) get no hint."""
     tried = _fake_stage6(monkeypatch, {-0.55: 3, -0.6: 6, -0.65: 4})
-    seen = {'vehicle': True}
-
-    def detection(extrinsics: Any, recording: Any, config: CalibConfig) -> float:
-        if not seen['vehicle']:
-            raise InsufficientDataError('quality', 'does not explain the vehicle')
-        return 1.0
-    monkeypatch.setattr(pipeline.quality, 'check_vehicle_detection', detection)
+    seen = _vehicle_seen_stub(monkeypatch)
     with pytest.raises(InsufficientDataError,
                        match=r'shifted by -0.60 s, beyond sync.max_time_offset \(0.25 s\).*'
                              r'Set sync.time_offset to -0.60'):
