@@ -325,7 +325,7 @@ def _check_redundant_keys(doc: Mapping[str, Any], translation: np.ndarray,
             stated = ', '.join(f'{v:.3f}' for v in Rotation.from_quat(quaternion).as_euler(
                 'xyz', degrees=True))
             raise ResultFileError(
-                f'result file {name!r}: rpy_deg {list(rpy)} and quaternion_xyzw (roll, pitch, '
+                f'result file {name!r}: rpy_deg {_listed(rpy)} and quaternion_xyzw (roll, pitch, '
                 f'yaw {stated} deg) disagree by {apart:.3f} deg; the tool uses '
                 'quaternion_xyzw: edit both, or remove rpy_deg')
     geodetic = [doc.get(k) for k in ('latitude', 'longitude', 'altitude')]
@@ -341,9 +341,15 @@ def _check_redundant_keys(doc: Mapping[str, Any], translation: np.ndarray,
         if not apart <= _GEODETIC_TOLERANCE_M:
             raise ResultFileError(
                 f'result file {name!r}: latitude/longitude/altitude {lat:.7f}, {lon:.7f}, '
-                f'{alt:.3f} lie {apart:.3f} m from translation {list(translation)} (EPSG '
+                f'{alt:.3f} lie {apart:.3f} m from translation {_listed(translation)} (EPSG '
                 f'{doc["epsg"]}); the tool uses translation: edit both, or remove latitude, '
                 'longitude and altitude')
+
+
+def _listed(values: Any) -> str:
+    """'[1.000, 2.000]': numbers as a message shows them (a thirty-seventh probe's read
+    '[np.float64(500277.99178861646), ...]')."""
+    return '[' + ', '.join(f'{float(v):.3f}' for v in values) + ']'
 
 
 def _is_numbers(value: Any, n: int) -> bool:

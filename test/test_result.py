@@ -106,8 +106,10 @@ def test_a_hand_edited_rpy_or_position_contradicting_the_file_is_refused(
     with pytest.raises(ResultFileError, match=r'rpy_deg .* disagree by 2\.000 deg; the tool '
                        'uses quaternion_xyzw'):
         load_result(_result_file(tmp_path, rpy_deg=[roll, pitch, yaw + 2.0]))
-    with pytest.raises(ResultFileError, match=r'lie 1\.1.. m from translation'):
+    with pytest.raises(ResultFileError, match=r'lie 1\.1.. m from translation') as err:
         load_result(_result_file(tmp_path, latitude=cal['latitude'] + 1e-5))
+    # numbers as numbers, not numpy's repr
+    assert 'np.' not in str(err.value) and 'translation [' in str(err.value)
     with pytest.raises(ResultFileError, match='rpy_deg must be 3 numbers'):
         load_result(_result_file(tmp_path, rpy_deg=[0.0, 'x', 1.0]))
     # a file of the three keys the tool uses alone is fine
