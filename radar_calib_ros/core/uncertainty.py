@@ -479,8 +479,9 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
         sentences.append(
             f'Where the roads allow, {crossing}, so the front and rear are seen from bearings '
             'far from the boresight; then calibrate again.')
-    return sentences + [f'Where they do not, drive {lane}: it shows sides already seen from '
-                        'new bearings (less than a turn or a crossing does).' for lane in lanes]
+    return sentences + [f'{"Where they do not, drive" if i == 0 else "Or drive"} {lane}: it '
+                        'shows sides already seen from new bearings (less than a turn or a '
+                        'crossing does).' for i, lane in enumerate(lanes)]
 
 
 #: A heading within this angle of an axis (either way) runs along it [rad]: across the

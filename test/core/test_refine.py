@@ -996,6 +996,9 @@ def test_passes_along_the_boresight_are_told_to_cross_the_view_first() -> None:
     assert mixed[1].startswith('Where the roads allow, turn through the view')
     assert 'or cross it at another range' in mixed[1]
     assert mixed[2].startswith('Where they do not, drive westbound') and len(mixed) == 3
+    two = uncertainty.drive_advice(0.5, 0.05, coverage, [lane, lane], 0.0,
+                                   headings_rad=[0.0, math.pi / 2.0])
+    assert two[2].startswith('Where they do not, drive') and two[3].startswith('Or drive')
     oblique = uncertainty.drive_advice(0.5, 0.05, coverage, [lane], 0.0,
                                        headings_rad=[0.0, math.pi / 4.0])
     assert oblique[1].startswith('Where the roads allow, cross the view')
