@@ -326,10 +326,24 @@ def _calibrated_recording(bag: str, calibration_path: str,
     from radar_calib_ros.result import load_result
     # a bad file fails before the bag is read
     calibration = load_result(calibration_path, config.radar.frame_id)
-    recording = read_recording(bag, config,
-                               radar_topic=_topic_of_frame(bag, config,
-                                                           str(calibration.get('radar_frame'))))
+    topic = _topic_of_frame(bag, config, str(calibration.get('radar_frame')))
+    recording = read_recording(bag, config, radar_topic=topic)
+    _warn_other_radar(bag, config, topic, str(calibration.get('radar_frame') or ''))
     return calibration, recording
+
+
+def _warn_other_radar(bag: str, config: CalibConfig, topic: str | None,
+                      result_frame: str) -> None:
+    """Warn when the clouds read are in another frame than the result's radar: a result of
+    another radar, evaluated without a word (a thirty-seventh probe's 'radar_north' result
+    on a bag of 'radar' clouds)."""
+    from radar_calib_ros.io.bag import configured_radar_frame_id
+    read = configured_radar_frame_id(bag, config if topic is None else dataclasses.replace(
+        config, radar_topic=topic)).lstrip('/')
+    if read and result_frame and read != result_frame.lstrip('/'):
+        print(f"warning: the result is of radar frame '{result_frame}' but the radar clouds "
+              f"read are in frame '{read}': a result of another radar? The figures compare "
+              'the two as if they were one.', file=sys.stderr)
 
 
 def _radar_of_frame(bag: str, config: CalibConfig) -> CalibConfig:

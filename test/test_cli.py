@@ -271,6 +271,26 @@ def test_evaluate_finds_one_radars_topic_by_its_frame(monkeypatch: pytest.Monkey
     assert cli._topic_of_frame('b', named, 'radar_sw') is None
 
 
+def test_evaluating_a_result_of_another_radar_frame_warns(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A result of radar frame 'radar_north' evaluated on a bag of 'radar' clouds (a
+    thirty-seventh probe: evaluated without a word) warns; the same frame, or a header
+    naming none, does not."""
+    from radar_calib_ros import cli
+    from radar_calib_ros.io import bag as bag_io
+
+    monkeypatch.setattr(bag_io, 'radar_frame_ids', lambda path: {'/radar/points': 'radar'})
+    config = CalibConfig.from_mapping({'radar_topic': '/radar/points'})
+    cli._warn_other_radar('b', config, None, 'radar_north')
+    err = capsys.readouterr().err
+    assert "result is of radar frame 'radar_north'" in err and "in frame 'radar'" in err
+    cli._warn_other_radar('b', config, None, '/radar')
+    assert capsys.readouterr().err == ''
+    monkeypatch.setattr(bag_io, 'radar_frame_ids', lambda path: {'/radar/points': ''})
+    cli._warn_other_radar('b', config, None, 'radar_north')
+    assert capsys.readouterr().err == ''
+
+
 def test_calibrate_finds_the_radar_of_the_frame_the_parameters_name(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Several radar topics, none named, radar.frame_id set: calibrate takes the topic in
