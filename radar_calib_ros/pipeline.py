@@ -433,12 +433,9 @@ def _beyond_offset(tracks: tuple[SmoothedTrack, ...], recording: Recording,
     best: tuple[tuple[int, int], float] | None = None
     for magnitude in steps:
         for off in (-float(magnitude), float(magnitude)):
-            shifted = replace(config, sync=replace(
-                config.sync, time_offset=config.sync.time_offset + off, max_time_offset=0.0))
-            try:
-                _, selection = _hypotheses(tracks, recording, ground, shifted, leaps=False)
-                quality.check_vehicle_detection(selection.extrinsics, recording, shifted)
-            except InsufficientDataError:
+            selection = _seen_agreeing(tracks, recording, ground, replace(config, sync=replace(
+                config.sync, time_offset=config.sync.time_offset + off, max_time_offset=0.0)))
+            if selection is None:
                 continue
             # the most agreeing tracks, as within the bound (``_best_shifted``): agreement
             # begins a few steps short of the clocks' offset
@@ -457,16 +454,24 @@ def _leap_offset(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground
     for leap in _LEAP_OFFSETS_S:
         shifted = replace(config, sync=replace(config.sync,
                                                time_offset=config.sync.time_offset + leap))
-        try:
-            _, selection = _hypotheses(tracks, recording, ground, shifted, leaps=False)
-            # other road users' tracks agree by chance at some offset (seen on a recording
-            # whose vehicle never came into view): the vehicle must be seen where that
-            # calibration puts it, as for every result
-            quality.check_vehicle_detection(selection.extrinsics, recording, shifted)
-        except InsufficientDataError:
-            continue
-        return leap
+        if _seen_agreeing(tracks, recording, ground, shifted) is not None:
+            return leap
     return None
+
+
+def _seen_agreeing(tracks: tuple[SmoothedTrack, ...], recording: Recording,
+                   ground: GroundPlane, shifted: CalibConfig) -> HypothesisSelection | None:
+    """Stage 6 under ``shifted`` (another clock offset, searched no further) where its
+    hypotheses agree and the vehicle is seen where they put it, else None: other road
+    users' tracks agree by chance at some offset (seen on a recording whose vehicle never
+    came into view), and the vehicle must be seen where that calibration puts it, as for
+    every result."""
+    try:
+        _, selection = _hypotheses(tracks, recording, ground, shifted, leaps=False)
+        quality.check_vehicle_detection(selection.extrinsics, recording, shifted)
+    except InsufficientDataError:
+        return None
+    return selection
 
 
 def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:
@@ -758,23 +763,23 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'ground. Check the driver\'s orientation.')
     offset_cdeg = recording.counters.get('odometry_heading_offset_cdeg', 0)
     # a few tenths are taken off silently: a good INS is aligned to about that
-    convergence = math.degrees(float(np.ravel(recording.frame.utm_convergence_rad(
-        recording.frame.lat0_deg, recording.frame.lon0_deg))[0]))
-    if (abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG
-            and abs(abs(offset_cdeg / 100) - abs(convergence)) <= _GRID_HEADING_TOLERANCE_DEG):
-        # a probe's, and two generators', yaw against the UTM grid's north was blamed on a
-        # turned INS: the offset is the site's meridian convergence
-        notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the vehicle\'s '
-                     f'course over ground throughout, the meridian convergence here '
-                     f'({abs(convergence):.2f} deg): its yaw is most likely against the UTM '
-                     'grid\'s north rather than true north (REP-103\'s ENU, as the contract '
-                     'has it). It was taken off; have the INS driver give the yaw against '
-                     'true north.')
-    elif abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG:
-        notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the vehicle\'s '
-                     'course over ground throughout (an INS mounted turned, or the heading of '
-                     'its own frame rather than the vehicle\'s): it was taken off. Check the '
-                     'INS yaw alignment.')
+    if abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG:
+        convergence = math.degrees(float(np.ravel(recording.frame.utm_convergence_rad(
+            recording.frame.lat0_deg, recording.frame.lon0_deg))[0]))
+        if abs(abs(offset_cdeg / 100) - abs(convergence)) <= _GRID_HEADING_TOLERANCE_DEG:
+            # a probe's, and two generators', yaw against the UTM grid's north was blamed on
+            # a turned INS: the offset is the site's meridian convergence
+            notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the '
+                         'vehicle\'s course over ground throughout, the meridian convergence '
+                         f'here ({abs(convergence):.2f} deg): its yaw is most likely against '
+                         'the UTM grid\'s north rather than true north (REP-103\'s ENU, as the '
+                         'contract has it). It was taken off; have the INS driver give the yaw '
+                         'against true north.')
+        else:
+            notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the '
+                         'vehicle\'s course over ground throughout (an INS mounted turned, or '
+                         'the heading of its own frame rather than the vehicle\'s): it was '
+                         'taken off. Check the INS yaw alignment.')
     wander_cdeg = recording.counters.get('odometry_heading_wander_cdeg')
     settled_s = recording.counters.get('odometry_heading_settled_s')
     if wander_cdeg and settled_s:
@@ -1475,7 +1480,9 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
     # The contract's v_r convention is a range rate; where the radar's is the opposite, the
     # paper's stages never noticed (they use |v_r| or compare v_r with v_r) but the final
     # fit and the detection check would be fooled: judge it on the vehicle, flip, and say so.
-    speed = quality.velocity_is_speed(current, recording, config)
+    # one placing of the vehicle serves both judgements of its radial velocities
+    in_view = quality.vehicle_in_view(current, recording, config)
+    speed = quality.velocity_is_speed(current, recording, config, in_view)
     if speed is not None:
         raise InsufficientDataError(
             'quality', f'the radar\'s velocities are the vehicle\'s speed, not its radial '
@@ -1485,7 +1492,8 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
             '(the Doppler): record the radar\'s detections, or the objects\' velocity '
             'components vx, vy in the sensor frame (projected onto the line of sight), and '
             'calibrate again')
-    factor, n_same, n_other = quality.radial_velocity_convention(current, recording, config)
+    factor, n_same, n_other = quality.radial_velocity_convention(current, recording, config,
+                                                                 in_view)
     sign = 1.0 if factor > 0 else -1.0
     if factor != 1.0:
         recording = replace(recording, targets=replace(

@@ -475,7 +475,7 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     user drove. Counting the drives the way the user remembers them (moving through the
     view, stops in view included) and naming the unused ones says which views are missing.
     The view is the data's (as in ``vehicle_detection_ratio``): the radar's azimuth span of
-    all targets, out to where it shows the vehicle (``_vehicle_in_view``).
+    all targets, out to where it shows the vehicle (``vehicle_in_view``).
     """
     vehicle = recording.vehicle
     if len(vehicle) < 2 or len(recording.targets) == 0:
@@ -486,7 +486,7 @@ def drives_through_view(extrinsics: Extrinsics, recording: Recording, fitted_ind
     range_m = np.hypot(local[:, 0], local[:, 1])
     azimuth = np.arctan2(local[:, 1], local[:, 0])
     radar_view = recording.radar_view()
-    view = _vehicle_in_view(extrinsics, recording, config, radar_view)
+    view = vehicle_in_view(extrinsics, recording, config, radar_view)
     reach = view.reach_m if view is not None else 0.8 * radar_view.horizontal_range_m
     az_lo, az_hi = radar_view.azimuth_rad
     margin = np.radians(3.0)
@@ -654,7 +654,7 @@ def vehicle_detection_ratio(extrinsics: Extrinsics, recording: Recording,
     traffic and head-on views included) and 0.00-0.02 for that wrong one.
 
     The radar's view is taken from the data (1st-99th percentile of the targets' azimuth,
-    shrunk by a margin, out to where the radar shows the vehicle: ``_vehicle_in_view``), as
+    shrunk by a margin, out to where the radar shows the vehicle: ``vehicle_in_view``), as
     the contract has no field-of-view parameter.
 
     Returns
@@ -662,7 +662,7 @@ def vehicle_detection_ratio(extrinsics: Extrinsics, recording: Recording,
     (ratio, n_frames): the share, and how many frames the check looked at (ratio is NaN
     when none).
     """
-    view = _vehicle_in_view(extrinsics, recording, config)
+    view = vehicle_in_view(extrinsics, recording, config)
     if view is None:
         return float('nan'), 0
     checked = view.checked
@@ -671,7 +671,7 @@ def vehicle_detection_ratio(extrinsics: Extrinsics, recording: Recording,
 
 
 def _frames_seen(view: VehicleInView, n_frames: int) -> np.ndarray:
-    """(n_frames,) True for the frames of ``_vehicle_in_view``'s targets that show the
+    """(n_frames,) True for the frames of ``vehicle_in_view``'s targets that show the
     vehicle: a target near its box with its predicted radial velocity."""
     seen = np.zeros(n_frames, bool)
     seen[view.frames[np.abs(view.measured_vr - view.predicted_vr)
@@ -685,8 +685,8 @@ _SIGN_MIN_MATCHES = 20
 _SIGN_DOMINANCE = 3.0
 
 
-def velocity_is_speed(extrinsics: Extrinsics, recording: Recording,
-                      config: CalibConfig) -> tuple[int, int] | None:
+def velocity_is_speed(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
+                      view: VehicleInView | None = None) -> tuple[int, int] | None:
     """(targets matching the radial velocity, targets matching the speed) near the
     vehicle's box where its targets' velocities are its speed (signed or not) rather than
     its radial velocity, else None.
@@ -696,9 +696,10 @@ def velocity_is_speed(extrinsics: Extrinsics, recording: Recording,
     such lists were refused in 4 of 6 recordings as 'never in view' or 'folded, scaled or
     flipped', and the other 2 came out 0.8-0.9 m low and 0.7-1.0 deg off without a word.
     Only the targets whose radial velocity differs from the speed tell the two apart (seen
-    from the side, or off the line of travel).
+    from the side, or off the line of travel). ``view``: ``vehicle_in_view`` of the same
+    calibration, where the caller has it.
     """
-    view = _vehicle_in_view(extrinsics, recording, config)
+    view = view or vehicle_in_view(extrinsics, recording, config)
     if view is None:
         return None
     tolerance = _CHECK_VR_TOLERANCE_MPS
@@ -718,7 +719,8 @@ _VR_FACTORS = (-1.0, 3.6, -3.6)
 
 
 def radial_velocity_convention(extrinsics: Extrinsics, recording: Recording,
-                               config: CalibConfig) -> tuple[float, int, int]:
+                               config: CalibConfig, view: VehicleInView | None = None
+                               ) -> tuple[float, int, int]:
     """Which convention the radar's radial velocities follow, judged on the vehicle: the
     factor between them and the contract's range rate in m/s (1, -1, 3.6 or -3.6).
 
@@ -735,9 +737,10 @@ def radial_velocity_convention(extrinsics: Extrinsics, recording: Recording,
     -------
     (factor, n_same, n_factor): 1.0 unless clearly more targets (at least
     ``_SIGN_MIN_MATCHES`` and ``_SIGN_DOMINANCE`` times as many) match another factor, the
-    count matching 1 and the count matching the factor returned (0 for 1.0).
+    count matching 1 and the count matching the factor returned (0 for 1.0). ``view``:
+    ``vehicle_in_view`` of the same calibration, where the caller has it.
     """
-    view = _vehicle_in_view(extrinsics, recording, config)
+    view = view or vehicle_in_view(extrinsics, recording, config)
     if view is None:
         return 1.0, 0, 0
     measured_vr, predicted_vr = view.measured_vr, view.predicted_vr
@@ -764,7 +767,7 @@ _REACH_MIN_SEEN = 50
 
 @dataclass(frozen=True, slots=True)
 class VehicleInView:
-    """Where a calibration puts the moving vehicle in the radar's view (``_vehicle_in_view``).
+    """Where a calibration puts the moving vehicle in the radar's view (``vehicle_in_view``).
 
     checked : (n_frames,) frames with the vehicle in view, moving along the line of sight;
     index, frames : the targets of those frames near its box and their frames;
@@ -783,8 +786,8 @@ class VehicleInView:
     speed_mps: F64
 
 
-def _vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
-                     radar_view: RadarView | None = None) -> VehicleInView | None:
+def vehicle_in_view(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
+                    radar_view: RadarView | None = None) -> VehicleInView | None:
     """Frames where the calibration puts the moving vehicle in the radar's view, and the
     targets of those frames near its box (within ``refine.gate_m``); None when no frame
     qualifies. ``radar_view`` is the recording's, computed here when not given.

@@ -723,7 +723,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     # against the priors at full strength (as in the fit, where the priors were weighed
     # down instead), or the prior-held directions (the height) would widen by sqrt(stride).
     model, x_hat = linearised_at(data, est, profile)
-    r, j, _, jp = model.residuals(x_hat, jac=True)
+    r, j, rp, jp = model.residuals(x_hat, jac=True)
     assert j is not None and jp is not None
     w = np.sqrt(_robust(r, data.index.size)[0] * stride)
     row_pass = np.concatenate([np.repeat(data.pass_id, 3), data.pass_id])
@@ -805,9 +805,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     turn = (_turn_between_passes(pc, jp.T @ jp, cov7, data, recording, est, config)
             if halves is not None else None)
     if turn is None:
-        turn = _yaw_step_between_passes(j * w[:, None], r * w, jp,
-                                        model.residuals(x_hat, jac=False)[2], data,
-                                        pc.n_passes, recording, est, config)
+        turn = _yaw_step_between_passes(j * w[:, None], r * w, jp, rp, data, pc.n_passes,
+                                        recording, est, config)
     if turn is not None:
         diagnostics['mount_turn'] = turn
     if halves is not None:

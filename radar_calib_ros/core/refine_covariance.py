@@ -263,10 +263,9 @@ def _yaw_step_between_passes(jacobian: F64, residuals: F64, prior_jacobian: F64,
     ``hypotheses.min_passes`` passes on each.
     """
     yaw, weight = _pass_yaws(jacobian, residuals, data, n_passes)
-    found = _yaw_step(yaw, weight, config.hypotheses.min_passes)
-    if found is None:
+    k = _yaw_step(yaw, weight, config.hypotheses.min_passes)
+    if k is None:
         return None
-    k = found
     at_ns, gap = _turn_moment(k, data, recording, estimate, config)
     change = _yaw_change(jacobian, residuals, prior_jacobian, prior_residuals, data, k)
     return MountTurn(at_ns, gap, math.degrees(change), k, n_passes - k, 0.0)

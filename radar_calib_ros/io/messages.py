@@ -306,14 +306,11 @@ def decode_pointcloud(msg: Any, velocity_field: str = '') -> RadarFrame:
     else:
         raise DecodeError('PointCloud2 has neither x/y/z nor range/azimuth/elevation fields; '
                           f'fields found: {_fields_listing(table)}')
-    components: tuple[str, ...] = ()
-    if velocity_field or _velocity_field_among(table) is not None:
-        v_names: tuple[str, ...] = (_choose_velocity_field(table, velocity_field),)
-    else:
-        components = _velocity_components_among(table) or ()
-        if not components:
-            _choose_velocity_field(table, velocity_field)     # raises, naming the fields
-        v_names = components
+    components: tuple[str, ...] = (
+        () if velocity_field or _velocity_field_among(table) is not None
+        else _velocity_components_among(table) or ())
+    # (without either, choosing the velocity field raises, naming the fields found)
+    v_names = components or (_choose_velocity_field(table, velocity_field),)
     extent = _fields_extent(fields)
     if point_step < extent:
         raise DecodeError(f'PointCloud2 point_step {point_step} is smaller than its fields '

@@ -203,7 +203,7 @@ def test_drives_through_the_view_are_counted_and_the_unused_ones_named() -> None
     assert advice.startswith('1 of the 5 drives through the view')
     assert 'no target moving with the vehicle' in advice and 'rests on the other 4' in advice
     # with the radial velocities its motion predicts, the drive was seen but not used
-    view = quality._vehicle_in_view(scene.truth, rec, scene.config)
+    view = quality.vehicle_in_view(scene.truth, rec, scene.config)
     assert view is not None
     v_r = rec.targets.radial_velocity_mps.copy()
     v_r[view.index] = view.predicted_vr
@@ -370,7 +370,7 @@ def test_the_view_reaches_as_far_as_the_radar_shows_the_vehicle_not_its_clutter(
     the detection ratio (probe 29: 8 drives counted as 3, the ratio 0.76 -> 0.29)."""
     scene = make_scene(n_passes=5)
     rec = scene.recording
-    view = quality._vehicle_in_view(scene.truth, rec, scene.config)
+    view = quality.vehicle_in_view(scene.truth, rec, scene.config)
     assert view is not None
     v_r = rec.targets.radial_velocity_mps.copy()
     v_r[view.index] = view.predicted_vr  # the vehicle seen with its own radial velocity
