@@ -292,12 +292,18 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     read_s = time.perf_counter() - start
     evaluation = evaluate_recording(
         recording, calibration, config,
-        truth=_ground_truth(args.bag, str(calibration.get('radar_frame', 'radar'))))
+        truth=_ground_truth(args.bag, str(calibration.get('radar_frame', 'radar'))),
+        agreement=not args.no_verdict)
     print(format_evaluation(evaluation), file=out)
     if args.json:
         write_atomic(args.json, json.dumps(evaluation_dict(evaluation), indent=2) + '\n')
     print(f'evaluated in {time.perf_counter() - start:.1f} s (reading {read_s:.1f} s)'
           + (f'; written to {args.json}' if args.json else ''), file=out)
+    if args.strict and evaluation.agreement is not None \
+            and evaluation.agreement.verdict == 'does not hold':
+        print('error: the calibration does not hold on this recording (--strict)',
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -665,9 +671,18 @@ def build_parser() -> argparse.ArgumentParser:
         'vehicle by synchronised time, those more than 5 m from it on average dropped, the '
         'rest merged; r_i, delta_op and delta_p, overall and per range bin. Where the bag '
         "directory holds the simulator's ground_truth.json, also the position and rotation "
-        'errors. Exit 1 when the vehicle is never seen, 2 on bad input.')
+        'errors. Then a verdict: the radar fitted on this recording alone (the final '
+        'refinement, started from the calibration) against the calibration, each axis in '
+        'the uncertainty of both: holds, doubtful, does not hold, or cannot tell. Exit 1 when '
+        'the vehicle is never seen (and with --strict when the calibration does not hold), 2 '
+        'on bad input.')
     _add_recording_arguments(p, calibration=True)
     p.add_argument('--json', help='also write the evaluation as JSON here')
+    p.add_argument('--strict', action='store_true',
+                   help="exit 1 when the verdict is 'does not hold' (for acceptance scripts)")
+    p.add_argument('--no-verdict', action='store_true',
+                   help="the paper's figures only, without the fit behind the verdict "
+                   '(about as long again as the tracking)')
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser(

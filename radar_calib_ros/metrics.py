@@ -179,6 +179,105 @@ def moving_unlike_vehicle(recording: Recording, target_index: I64, extrinsics: E
     return unlike
 
 
+#: Radial velocities further than this off the calibration's prediction never count in a
+#: pass's yaw [m/s]: a 6 deg turn of the mount at 15 m/s (and other road users beyond).
+_PASS_YAW_GATE_MPS = 2.0
+#: Fastest the vehicle may turn where its targets count in a pass's yaw [rad/s]: the
+#: rotation's share of a target's velocity rests on where the calibration puts it (a yaw
+#: error of 0.5 deg misplaces a target 40 m out by 0.35 m: 0.1 m/s at 0.3 rad/s), and the
+#: heading's rate is noisy where the car is slow.
+_PASS_YAW_MAX_YAW_RATE_RPS = 0.15
+#: Least |v . (z x ray)| of the targets that seed a pass's yaw (``_robust_yaw``) [m/s].
+_PASS_YAW_SEED_SLOPE_MPS = 1.0
+
+
+def _robust_yaw(slope: F64, residual: F64) -> tuple[float, np.ndarray, float] | None:
+    """One pass's yaw [rad] from ``residual = yaw * slope`` (+ outliers): seeded by the
+    median ratio of its well-conditioned targets, then least squares within 3 robust
+    standard deviations of the fit, three times; with the mask kept and the residual
+    spread [m/s] (at least 0.05). None where nothing seeds it."""
+    seed = np.abs(slope) >= _PASS_YAW_SEED_SLOPE_MPS
+    if np.count_nonzero(seed) < 3:
+        return None
+    yaw = float(np.median(residual[seed] / slope[seed]))
+    kept = np.ones(slope.size, bool)
+    spread = 0.05
+    for _ in range(3):
+        error = residual - yaw * slope
+        mad = float(np.median(np.abs(error - np.median(error))))
+        spread = max(1.4826 * mad, 0.05)
+        kept = np.abs(error) <= 3.0 * spread
+        hessian = float(np.sum(slope[kept] ** 2))
+        if hessian <= 0.0:
+            return None
+        yaw = float(np.sum(slope[kept] * residual[kept])) / hessian
+    return yaw, kept, spread
+
+
+def pass_yaw_offsets(recording: Recording, target_index: I64, extrinsics: Extrinsics,
+                     config: CalibConfig) -> tuple[F64, F64, I64]:
+    """Each vehicle pass's yaw [rad] relative to a calibration, from the radial velocities of
+    the given targets alone, its weight (inverse variance) and its [start, end] stamps.
+
+    Why: the radial velocity a calibration predicts for a target of the moving vehicle is
+    the vehicle's velocity on the ray ``R p`` to the target, which depends on the rotation
+    (and the clock) only: neither on where the radar stands nor on where on the car the
+    target lies. Turning the radar by a yaw d adds d * v . (z x ray), so each pass measures
+    the yaw on its own, and a mount knocked between passes shows as a step (a thirty-sixth
+    probe's 3 deg knock, which a fit over the whole recording blended to 1 deg). Only the
+    car's turning needs the position (its points' speed about the reference point). Targets
+    off the pass's own robust fit (wheels, other road users) are left out (``_robust_yaw``:
+    a fixed gate about the calibration's prediction would keep a knocked mount's passes
+    only in part and bias them towards it); the weight counts frames, not targets (a
+    frame's targets share the vehicle's velocity and the clock).
+
+    Returns (G,) yaws, (G,) weights and (G, 2) stamps, passes split at gaps of
+    ``hypotheses.pass_gap_s``; passes with fewer than 3 usable frames are left out.
+    """
+    target_index = np.asarray(target_index, np.int64)
+    stamps = recording.stamps_of(target_index)
+    order = np.argsort(stamps, kind='stable')
+    target_index, stamps = target_index[order], stamps[order]
+    offset_s = config.sync.time_offset + extrinsics.time_offset_s
+    poses = interpolate_poses(recording.vehicle, stamps + np.int64(round(offset_s * 1e9)),
+                              config.sync.max_pose_gap)
+    local = recording.targets.positions_m[target_index]
+    rays = local @ np.asarray(extrinsics.rotation, np.float64).T
+    # a turning car's points move with its yaw rate about the reference point too (2 m off
+    # it at 0.3 rad/s: 0.6 m/s): without it a pass through a turn read 0.3 deg off
+    lever = rays + np.asarray(extrinsics.translation_m, np.float64) - poses.positions_m
+    velocity = poses.velocities_mps.copy()
+    velocity[:, 0] -= poses.yaw_rate_rps * lever[:, 1]
+    velocity[:, 1] += poses.yaw_rate_rps * lever[:, 0]
+    rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-9)[:, None]
+    residual = (recording.targets.radial_velocity_mps[target_index]
+                - np.sum(velocity * rays, axis=1))
+    slope = velocity[:, 1] * rays[:, 0] - velocity[:, 0] * rays[:, 1]   # v . (z x ray)
+    gap_ns = np.int64(round(config.hypotheses.pass_gap_s * 1e9))
+    pass_id = np.concatenate([[0], np.cumsum(np.diff(stamps) > gap_ns)]) if stamps.size \
+        else np.zeros(0, np.int64)
+    frames = recording.targets.frame_index[target_index]
+    usable = (poses.valid & (np.abs(residual) <= _PASS_YAW_GATE_MPS)
+              & (np.abs(poses.yaw_rate_rps) <= _PASS_YAW_MAX_YAW_RATE_RPS))
+    yaws, weights, spans = [], [], []
+    for p in range(int(pass_id[-1]) + 1 if pass_id.size else 0):
+        in_pass = usable & (pass_id == p)
+        fitted = _robust_yaw(slope[in_pass], residual[in_pass])
+        if fitted is None:
+            continue
+        yaw, kept, spread = fitted
+        n_frames = np.unique(frames[in_pass][kept]).size
+        if n_frames < 3:
+            continue
+        yaws.append(yaw)
+        weights.append(float(np.sum(slope[in_pass][kept] ** 2)) / spread ** 2
+                       * n_frames / int(kept.sum()))
+        pass_stamps = stamps[pass_id == p]
+        spans.append((int(pass_stamps[0]), int(pass_stamps[-1])))
+    return (np.asarray(yaws, np.float64), np.asarray(weights, np.float64),
+            np.asarray(spans, np.int64).reshape(-1, 2))
+
+
 def rigid_radial_velocity(world: F64, extrinsics: Extrinsics, velocities: F64) -> F64:
     """(n,) radial velocity (range rate) the radar at ``extrinsics`` sees of targets at
     ``world`` on a vehicle moving at ``velocities`` (its yaw rate neglected)."""

@@ -109,6 +109,12 @@ def quality_dict(report: QualityReport) -> dict[str, Any]:
         'vertical_m': d.pop('sigma_vertical_m'),
         'rotation_deg': d.pop('sigma_rotation_deg'),
     }
+    # each rotation axis apart: a yaw known to 0.02 deg is not hidden under a tilt known to
+    # 0.4 (``evaluate`` compares a second recording's fit with each)
+    for name, value in zip(('roll_deg', 'pitch_deg', 'yaw_deg'),
+                           d.pop('sigma_rotation_axes_deg')):
+        if math.isfinite(value):
+            d['sigma'][name] = value
     time_sigma = d.pop('sigma_time_offset_s')
     if math.isfinite(time_sigma):
         d['sigma']['time_offset_s'] = time_sigma

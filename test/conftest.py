@@ -1,6 +1,8 @@
 """Fixtures shared by several test files."""
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from radar_calib_ros.config import CalibConfig
@@ -23,3 +25,10 @@ def config(sim: SimulationSummary) -> CalibConfig:
 @pytest.fixture(scope='session')
 def recording(sim: SimulationSummary, config: CalibConfig) -> Recording:
     return read_recording(sim.paths.bag, config)
+
+
+@pytest.fixture(scope='session')
+def drive(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """150 s of the baseline scenario (five passes) and its configuration."""
+    summary = simulate(tmp_path_factory.mktemp('drive') / 'bag', seed=3, duration_s=150.0)
+    return summary, CalibConfig.from_file(summary.paths.params)

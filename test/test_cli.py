@@ -121,6 +121,9 @@ def test_demo_end_to_end_against_ground_truth(tmp_path: Path,
     assert truth is not None
     estimate = load_result(tmp_path / 'demo' / 'result.yaml')
     errors = calibration_errors(estimate, truth)
+    # the box it was made with, for evaluate on another recording
+    assert set(estimate['quality']['vehicle']) == {'length', 'width', 'height',
+                                                   'rear_overhang', 'ref_height'}
     assert errors['horizontal_m'] < 0.10
     assert errors['vertical_m'] < 0.20
     assert errors['rotation_deg'] < 0.3

@@ -278,15 +278,6 @@ def test_a_2d_radar_is_named_in_the_advice() -> None:
     assert tilted.has_elevation and not _data_notes(tilted, [])
 
 
-@pytest.fixture(scope='module')
-def drive(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    """150 s of the baseline scenario (five passes) and its configuration."""
-    from radar_calib_ros.sim import simulate
-
-    summary = simulate(tmp_path_factory.mktemp('drive') / 'bag', seed=3, duration_s=150.0)
-    return summary, CalibConfig.from_file(summary.paths.params)
-
-
 def test_a_failed_stage_6_on_a_plane_near_the_radar_is_tried_on_every_target(
         drive: Any) -> None:
     """Roads at two levels (a bridge about the radar's height) tilt the moving targets'
@@ -635,6 +626,11 @@ def test_the_clock_offset_has_its_uncertainty_and_none_where_not_estimated(drive
     expected = (held if held is not None
                 else math.sqrt(result.refinement.covariance[6, 6]))
     assert sigma['time_offset_s'] == pytest.approx(expected) and 1e-4 < expected < 0.1
+    # each rotation axis apart too: the radial velocities pin the yaw far better than the
+    # tilt, which one RMS angle hid
+    axes = np.array([sigma['roll_deg'], sigma['pitch_deg'], sigma['yaw_deg']])
+    assert np.sqrt(np.sum(axes ** 2)) <= sigma['rotation_deg'] * (1 + 1e-9)
+    assert sigma['yaw_deg'] < sigma['pitch_deg']
     fixed = run_calibration(recording, replace_config(config,
                                                       **{'sync.estimate_time_offset': False}))
     assert 'time_offset_s' not in quality_dict(fixed.quality)['sigma']

@@ -126,6 +126,8 @@ def test_report_command_writes_the_evaluation_figures_without_recalibrating(
         EVALUATION_FIGURES)
     page = _check_outputs(tmp_path / 'rep', EVALUATION_FIGURES)
     assert 'Against the ground truth' in page and 'calibrate BAG --report DIR' in page
+    # the verdict of a fit on the recording alone, as evaluate gives it (two passes here)
+    assert 'Verdict: cannot tell whether the calibration holds' in page
 
 
 def test_report_command_bad_input(sim: SimulationSummary, tmp_path: Path,
@@ -200,3 +202,24 @@ def test_figures_are_labelled(config: CalibConfig, recording: Recording,
             assert label, titles
             if ax.get_label() != '<colorbar>':
                 assert '[' in ax.get_xlabel() + label, (titles, ax.get_xlabel(), label)
+
+
+def test_the_page_shows_the_verdict_with_each_difference(
+        config: CalibConfig, recording: Recording, truth: dict[str, Any]) -> None:
+    from dataclasses import replace
+
+    from radar_calib_ros.evaluate import (AGREEMENT_COMPONENTS, Agreement, evaluate_tracked,
+                                          track_targets)
+    from radar_calib_ros.report import html
+    ev = evaluate_tracked(recording, track_targets(recording, config),
+                          _truth_calibration(truth), config)
+    assert ev.agreement is None and html._agreement_section(ev) == ''
+    differences = dict(zip(AGREEMENT_COMPONENTS, (0.012, -0.5, 0.03, 0.01, -0.02, 0.6)))
+    sigmas = dict(zip(AGREEMENT_COMPONENTS, (0.1, 0.04, 0.4, 0.12, 0.38, 0.03)))
+    agreement = Agreement('does not hold', 'a fit on this recording alone puts the radar '
+                          '-50 cm across its boresight (12.5 sigma) from the calibration',
+                          differences, sigmas, 6, 0.002)
+    section = html._agreement_section(replace(ev, agreement=agreement))
+    assert 'Verdict: the calibration does not hold on this recording' in section
+    assert '12.5 sigma' in section
+    assert '-50.0 (4.0)' in section and '+0.600 (0.030)' in section

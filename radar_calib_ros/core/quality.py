@@ -177,6 +177,7 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         sigma_across_boresight_m=sigma['across'],
         sigma_vertical_m=sigma['vertical'],
         sigma_rotation_deg=sigma['rotation_deg'],
+        sigma_rotation_axes_deg=(sigma['roll_deg'], sigma['pitch_deg'], sigma['yaw_deg']),
         advice=tuple(advice),
         extra=extra,
         sigma_time_offset_s=_time_offset_sigma_s(sigma, refinement, config))
@@ -199,13 +200,18 @@ def uncertainty_from_covariance(covariance: F64, rotation: F64) -> dict[str, flo
 
     translation: sqrt of the trace of the translation block; along / across: along and
     across the horizontal direction of the boresight (the sensor x axis in the world);
-    vertical: z; rotation_deg: sqrt of the trace of the rotation block (the RMS angle).
+    vertical: z; rotation_deg: sqrt of the trace of the rotation block (the RMS angle);
+    roll_deg, pitch_deg, yaw_deg: about the horizontal boresight, the horizontal axis left
+    of it and the vertical (the radar's roll, pitch and yaw for the few-degree tilts of a
+    mount): yaw is what the radial velocities pin and tilt what the road leaves open, so one
+    RMS angle hides a yaw error under the tilt's uncertainty (``evaluate``'s agreement).
     """
     covariance = np.asarray(covariance, np.float64)
     if covariance.shape[0] < 6 or not np.all(np.isfinite(covariance[:6, :6])):
         nan = float('nan')
         return {'translation': nan, 'along': nan, 'across': nan, 'vertical': nan,
-                'rotation_deg': nan, 'time_offset_s': nan}
+                'rotation_deg': nan, 'roll_deg': nan, 'pitch_deg': nan, 'yaw_deg': nan,
+                'time_offset_s': nan}
     rot, trans = covariance[:3, :3], covariance[3:6, 3:6]
     boresight = np.asarray(rotation, np.float64)[:2, 0]
     norm = np.linalg.norm(boresight)
@@ -214,12 +220,19 @@ def uncertainty_from_covariance(covariance: F64, rotation: F64) -> dict[str, flo
     across = np.array([-along[1], along[0]])
     horizontal = trans[:2, :2]
     time_var = covariance[6, 6] if covariance.shape[0] > 6 else float('nan')
+
+    def about(axis: F64) -> float:
+        return math.degrees(math.sqrt(max(float(axis @ rot @ axis), 0.0)))
+
     return {
         'translation': math.sqrt(max(float(np.trace(trans)), 0.0)),
         'along': math.sqrt(max(float(along @ horizontal @ along), 0.0)),
         'across': math.sqrt(max(float(across @ horizontal @ across), 0.0)),
         'vertical': math.sqrt(max(float(trans[2, 2]), 0.0)),
         'rotation_deg': math.degrees(math.sqrt(max(float(np.trace(rot)), 0.0))),
+        'roll_deg': about(np.array([along[0], along[1], 0.0])),
+        'pitch_deg': about(np.array([across[0], across[1], 0.0])),
+        'yaw_deg': about(np.array([0.0, 0.0, 1.0])),
         'time_offset_s': math.sqrt(max(float(time_var), 0.0)),
     }
 

@@ -910,6 +910,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # the two jackknifes behind the reported covariance (7x7 blocks, as cov7)
         'covariance_passes': _pose_block(pc.covariance, estimate_tau),
         'covariance_bands': _pose_block(pb.covariance, estimate_tau),
+        # the passes' disagreement alone, without the priors (``evaluate``'s agreement)
+        'covariance_pass_scatter': _pose_block(uncertainty.pass_scatter(pc), estimate_tau),
     })
     return Refinement(extrinsics=est, covariance=cov7, n_targets=int(data.index.size),
                       n_passes=pc.n_passes,

@@ -213,7 +213,7 @@ def _yaw_change(jacobian: F64, residuals: F64, prior_jacobian: F64, prior_residu
     return float(-np.linalg.lstsq(hessian, gradient, rcond=None)[0][-1])
 
 
-def _yaw_step(yaw: F64, weight: F64, least: int) -> int | None:
+def yaw_step(yaw: F64, weight: F64, least: int) -> int | None:
     """The first pass after a step in the passes' yaws (``yaw`` (G,) [rad], ``weight`` their
     inverse variances), where the step is ``_YAW_STEP_Z`` standard errors and
     ``_YAW_STEP_MIN_DEG`` or more with at least ``least`` passes on each side, else None.
@@ -263,7 +263,7 @@ def _yaw_step_between_passes(jacobian: F64, residuals: F64, prior_jacobian: F64,
     ``hypotheses.min_passes`` passes on each.
     """
     yaw, weight = _pass_yaws(jacobian, residuals, data, n_passes)
-    k = _yaw_step(yaw, weight, config.hypotheses.min_passes)
+    k = yaw_step(yaw, weight, config.hypotheses.min_passes)
     if k is None:
         return None
     at_ns, gap = _turn_moment(k, data, recording, estimate, config)

@@ -108,6 +108,20 @@ def pass_jackknife_covariance(jacobian: F64, residuals: F64, pass_id: I64,
     return PassCovariance(covariance, influences, n_passes, t_scale, h_pass, g_pass)
 
 
+def pass_scatter(passes: PassCovariance) -> F64:
+    """The jackknife part of :func:`pass_jackknife_covariance` alone (t-scaled, no prior
+    term): how much the passes disagree, without what the priors leave open. Two fits that
+    share the priors (a calibration and a check of it on another recording with the same
+    vehicle) differ by their scatters, not by the priors' width. NaN with fewer than two
+    passes."""
+    n = passes.n_passes
+    if n < 2:
+        return np.full((passes.influences.shape[1],) * 2, np.nan)
+    centred = passes.influences - passes.influences.mean(axis=0)
+    out: F64 = passes.t_scale ** 2 * (n - 1) / n * centred.T @ centred
+    return out
+
+
 def _prior_term(h_inv: F64, prior_part: F64) -> F64:
     """H^-1 P H^-1: the covariance a prior (or the part ``prior_part`` of the priors) adds
     where the data leave the estimate to it."""

@@ -17,7 +17,7 @@ Two entry points, one page layout:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,7 +25,8 @@ import numpy as np
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import InsufficientDataError
-from radar_calib_ros.evaluate import Evaluation, evaluate_tracked, track_targets
+from radar_calib_ros.evaluate import (Evaluation, check_agreement, evaluate_tracked,
+                                      track_targets)
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.report import figures as fig
 from radar_calib_ros.report.html import FigureEntry, write_html
@@ -117,7 +118,10 @@ def write_report(out_dir: str | Path, *, title: str, calibration: Mapping[str, A
             'Per frame, the distance between the target closest to the sensor and the '
             "vehicle corner nearest the sensor, over that corner's range, with the "
             '"max error" reference: the distance from a corner to the vehicle\'s centre '
-            "(the paper's Fig. 3). A rotation error would make it grow with range.")
+            "(the paper's Fig. 3). It grows with range at the right calibration too (a "
+            'probe: 0.6 m at 30 m, 1.5 m at 115 m, from fewer returns and the angular '
+            'noise); a rotation error adds range times the angle, 1.7 m per 100 m and '
+            'degree. On a second recording the verdict judges the rotation directly.')
     if plane_points_m is not None and ground is not None:
         add('ground_plane.png', fig.figure_ground_plane(plane_points_m, ground, config),
             'Ground-plane fit',
@@ -164,6 +168,8 @@ def report_recording(out_dir: str | Path, recording: Recording, calibration: Map
     from radar_calib_ros.core import ground_plane
     tracked = track_targets(recording, config)
     evaluation = evaluate_tracked(recording, tracked, calibration, config, truth=truth)
+    # the verdict of a fit on this recording alone, as ``evaluate`` gives it
+    evaluation = replace(evaluation, agreement=check_agreement(evaluation, config))
     points = _plane_points(recording, tracked.target_index, config)
     ground = ground_plane.fit_ground_plane(points, config.ground) if len(points) >= 3 else None
     return write_report(

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from radar_calib_ros.evaluate import Evaluation
+from radar_calib_ros.evaluate import AGREEMENT_COMPONENTS, Evaluation
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,7 +125,9 @@ def _evaluation_section(evaluation: Evaluation, source: str) -> str:
                      f'<td>{_num(b.outlier_distance_m, ".3f")}</td><td>{b.n_frames}</td>'
                      f'<td>{_num(b.closest_target_offset_m, ".3f")}</td></tr>')
     table.append('</table>')
-    out = head + _rows(rows) + ''.join(table)
+    if evaluation.vehicle_note:
+        head += f'<p class="note">Note: {_e(evaluation.vehicle_note)}.</p>'
+    out = head + _rows(rows) + ''.join(table) + _agreement_section(evaluation)
     e = evaluation.errors
     if e is not None:
         rows = [('horizontal [cm]', _num(e.get('horizontal_m'), '.1f', 100)),
@@ -140,6 +142,24 @@ def _evaluation_section(evaluation: Evaluation, source: str) -> str:
         out += ('<h2>Against the ground truth</h2><p class="note">The bag directory carries '
                 "the simulator's ground_truth.json.</p>" + _rows(rows))
     return out
+
+
+def _agreement_section(evaluation: Evaluation) -> str:
+    g = evaluation.agreement
+    if g is None:
+        return ''
+    out = f'<h2>Verdict: {_e(g.headline)}</h2><p class="note">{_e(g.reason)}.</p>'
+    if not g.differences:
+        return out
+    units = {'_m': ('cm', 100, '+.1f'), '_deg': ('deg', 1, '+.3f')}
+    rows = []
+    for k in AGREEMENT_COMPONENTS:
+        unit, scale, fmt = units['_m' if k.endswith('_m') else '_deg']
+        label = k.rsplit('_', 1)[0]
+        rows.append((f'{label} [{unit}]: fit here minus calibration (1-sigma)',
+                     f'{_num(g.differences[k], fmt, scale)} '
+                     f'({_num(g.sigmas[k], fmt.lstrip("+"), scale)})'))
+    return out + _rows(rows)
 
 
 def _figure_html(entry: FigureEntry) -> str:

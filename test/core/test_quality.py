@@ -33,12 +33,19 @@ def test_uncertainty_along_and_across_the_boresight() -> None:
     assert s['translation'] == pytest.approx(np.sqrt(0.14))
     assert s['rotation_deg'] == pytest.approx(np.degrees(3e-3))
     assert s['time_offset_s'] == pytest.approx(1e-3)
+    # per axis: about the boresight (world x here), left of it (y) and the vertical
+    assert s['roll_deg'] == pytest.approx(np.degrees(1e-3))
+    assert s['pitch_deg'] == pytest.approx(np.degrees(2e-3))
+    assert s['yaw_deg'] == pytest.approx(np.degrees(2e-3))
     # boresight pointing north-west and pitched down: only its horizontal direction counts
     rot = registration.yaw_rotation(np.radians(135.0)) @ np.array(
         [[np.cos(0.3), 0, np.sin(0.3)], [0, 1, 0], [-np.sin(0.3), 0, np.cos(0.3)]])
     s = quality.uncertainty_from_covariance(cov, rot)
     assert s['along'] == pytest.approx(np.sqrt(0.05)) and s['across'] == pytest.approx(
         np.sqrt(0.05))
+    # roll about the horizontal boresight (NW): half of x's variance and half of y's
+    assert s['roll_deg'] == pytest.approx(np.degrees(np.sqrt(2.5e-6)))
+    assert s['yaw_deg'] == pytest.approx(np.degrees(2e-3))
     assert np.isnan(quality.uncertainty_from_covariance(np.full((7, 7), np.nan),
                                                         rot)['along'])
 

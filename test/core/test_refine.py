@@ -407,6 +407,24 @@ def test_jackknife_of_a_linear_mean_is_the_classic_one() -> None:
     np.testing.assert_allclose(pc.influences[:, 0], loo - values.mean(), atol=1e-12)
 
 
+def test_pass_scatter_is_the_jackknife_without_the_priors() -> None:
+    """What a check on another recording compares with: the passes' disagreement alone; the
+    priors' term (the same in both fits) is what the full covariance adds on top."""
+    rng = np.random.default_rng(5)
+    values = rng.normal(size=40)
+    pass_id = np.repeat(np.arange(8), 5)
+    jac = np.ones((40, 1))
+    res = values.mean() - values
+    prior = np.array([[4.0]])
+    pc = uncertainty.pass_jackknife_covariance(jac, res, pass_id, prior)
+    scatter = uncertainty.pass_scatter(pc)
+    h_inv = 1.0 / (40.0 + 4.0)
+    assert pc.covariance[0, 0] - scatter[0, 0] == pytest.approx(h_inv * 4.0 * h_inv)
+    assert 0 < scatter[0, 0] < pc.covariance[0, 0]
+    one = uncertainty.pass_jackknife_covariance(jac[:5], res[:5], pass_id[:5], prior)
+    assert np.isnan(uncertainty.pass_scatter(one)).all()
+
+
 def test_leaving_out_groups_of_passes_is_the_jackknife_over_those_groups() -> None:
     """The halves of a drive from the per-pass products equal a jackknife run over the
     halves' rows, and for a mean they are the means of the other half minus the mean."""
@@ -1665,21 +1683,21 @@ def test_a_step_in_the_passes_own_yaws_is_a_turn_of_the_mount() -> None:
     yaw, weight = refine_covariance._pass_yaws(j, r, data, 7)  # type: ignore[arg-type]
     np.testing.assert_allclose(np.degrees(yaw), [-0.7, -0.6, -0.65, 0.8, 0.75, 0.85, 0.8],
                                atol=0.05)
-    assert refine_covariance._yaw_step(yaw, weight, 3) == 3
+    assert refine_covariance.yaw_step(yaw, weight, 3) == 3
     change = refine_covariance._yaw_change(j, r, np.zeros((1, 4)), np.zeros(1),
                                            data, 3)  # type: ignore[arg-type]
     assert math.degrees(change) == pytest.approx(1.45, abs=0.02)
     # scatter of the same size, in no order in time: no step
     data, j, r = _passes_with_yaws([-0.7, 0.8, -0.6, 0.75, -0.65, 0.85, 0.8])
-    assert refine_covariance._yaw_step(*refine_covariance._pass_yaws(
+    assert refine_covariance.yaw_step(*refine_covariance._pass_yaws(
         j, r, data, 7), 3) is None  # type: ignore[arg-type]
     # a real step of 0.2 deg: below what is called a turn
     data, j, r = _passes_with_yaws([0.0, 0.0, 0.0, 0.2, 0.2, 0.2, 0.2])
-    assert refine_covariance._yaw_step(*refine_covariance._pass_yaws(
+    assert refine_covariance.yaw_step(*refine_covariance._pass_yaws(
         j, r, data, 7), 3) is None  # type: ignore[arg-type]
     # two passes before the step: not enough on that side
     data, j, r = _passes_with_yaws([-0.7, -0.6, 0.8, 0.75, 0.85, 0.8])
-    assert refine_covariance._yaw_step(*refine_covariance._pass_yaws(
+    assert refine_covariance.yaw_step(*refine_covariance._pass_yaws(
         j, r, data, 6), 3) is None  # type: ignore[arg-type]
 
 
