@@ -213,7 +213,10 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
                                                   tracked.track_id, config.ground)
     if clutter is None:
         return ground, None
-    note = (f'{100 * clutter.share:.0f} % of the moving targets did not move as road users do '
+    # 'over 99 %', not '100 %', where the road users' targets are a sliver (a probe read
+    # '100 %' as nothing real having moved)
+    share = ('over 99' if clutter.share > 0.99 else f'{100 * clutter.share:.0f}')
+    note = (f'{share} % of the moving targets did not move as road users do '
             '(the radar\'s false alarms, rain, snow or spray near it, or other clutter that '
             'moves; the share is high where road users give a radar few targets) and tilted the '
             f'ground plane by {clutter.tilt_deg:.1f} deg: the plane was fitted to the road '
@@ -1553,6 +1556,18 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                         selection, config, ground_normal=ground.normal)
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
+        plane = refinement.diagnostics.get('plane_moved')
+        if plane is not None:
+            lower = 'lower' if plane['vertical_m'] > 0 else 'higher'
+            corrections.append(
+                f'The paper\'s stages had the radar\'s tilt {plane["tilt_deg"]:.1f} deg off and '
+                f'the radar {abs(plane["vertical_m"]):.1f} m {lower} than the final fit puts '
+                'it: their '
+                'ground plane (stage 4) was not the road\'s'
+                + (' (the clutter named above)' if clutter_note else '')
+                + '. The tilt and the height are the final fit\'s, from the vehicle\'s own '
+                'targets.')
+            _LOG.warning('%s', corrections[-1])
         turn = refinement.diagnostics.get('mount_turn')
         if turn is not None:
             raise _MountTurned(turn)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from sklearn.cluster import DBSCAN
 
-from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.config import CalibConfig, HypothesesConfig
 from radar_calib_ros.core import registration
 from radar_calib_ros.core.uncertainty import drive_name
 from radar_calib_ros.core.vehicle import box_limits, vehicle_to_world, world_to_vehicle
@@ -356,6 +356,22 @@ _RIVAL_EPS_FACTOR = 2.0
 _NARROW_VIEW_DEG = 30.0
 
 
+def _accepted_cluster(eligible: Sequence[_Cluster], cfg: HypothesesConfig) -> _Cluster:
+    """The accepted one of the eligible clusters: the lowest mean rotation angle (the
+    paper's rule) among those seen on about as many passes as the best seen, ties within
+    ``angle_tie_deg`` going to more passes, then the better fit.
+
+    Why not among all: a car of the vehicle's size following it agreed only on the passes
+    of one direction, 3 of 8, and its few, alike hypotheses had a lower mean angle than the
+    vehicle's: it was taken, and the vehicle refused as its rival (a thirty-ninth probe).
+    The vehicle is seen on every pass."""
+    most = max(c.n_passes for c in eligible)
+    contenders = [c for c in eligible if c.n_passes >= most - _RIVAL_PASSES_BEHIND]
+    best_angle = min(c.mean_angle_deg for c in contenders)
+    tied = [c for c in contenders if c.mean_angle_deg <= best_angle + cfg.angle_tie_deg]
+    return min(tied, key=lambda c: (-c.n_passes, _rms(c), c.mean_angle_deg))
+
+
 def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ...],
                      recording: Recording, ground: GroundPlane,
                      config: CalibConfig) -> HypothesisSelection:
@@ -436,9 +452,7 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     if not eligible:
         raise InsufficientDataError(_STAGE, _no_cluster_reason(
             clusters, hyps, hyp_tracks, tracks, all_passes, recording, config))
-    best_angle = min(c.mean_angle_deg for c in eligible)
-    tied = [c for c in eligible if c.mean_angle_deg <= best_angle + cfg.angle_tie_deg]
-    accepted = min(tied, key=lambda c: (-c.n_passes, _rms(c), c.mean_angle_deg))
+    accepted = _accepted_cluster(eligible, cfg)
     assert accepted.fit is not None
     others = [(float(np.hypot(*(c.fit.translation_m[:2] - accepted.fit.translation_m[:2]))),
                c.n_passes) for c in eligible if c is not accepted and c.fit is not None]

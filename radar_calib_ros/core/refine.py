@@ -595,6 +595,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     profile = np.nan_to_num(prior_mean[(7 if estimate_tau else 6):])
     scatter = np.full(3, cfg.position_sigma_m)
     previous: I64 | None = None
+    plane_moved: tuple[float, float] | None = None
     tau_held: float | None = None
     data: _Selected | None = None
     model: _Model | None = None
@@ -708,7 +709,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                 profile = np.nan_to_num(prior_mean[7:])
                 scatter = np.full(3, cfg.position_sigma_m)
                 moved = fit_round(keep, stride)
-        _check_not_diverged(start, est, planar=not recording.has_elevation)
+        plane_moved = _check_not_diverged(start, est, planar=not recording.has_elevation)
         same = previous is not None and np.array_equal(previous, index)
         previous = index
         if same and moved[0] < 1e-4 and moved[1] < 1e-3 and moved[2] < 1e-4:
@@ -802,6 +803,10 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         cov7[:6, :6] += np.outer(halves_shift[:6], halves_shift[:6])
     diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
                                config, fit, rounds, scatter)
+    if plane_moved is not None:
+        # the start's tilt and height were off (stage 4's plane): named by the pipeline
+        diagnostics['plane_moved'] = {'tilt_deg': plane_moved[0],
+                                      'vertical_m': plane_moved[1]}
     turn = (_turn_between_passes(pc, jp.T @ jp, cov7, data, recording, est, config)
             if halves is not None else None)
     if turn is None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import re
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -129,6 +130,31 @@ def test_lowest_mean_angle_cluster_wins() -> None:
     assert max(selection.mean_angles_deg.values()) > 1.0
     assert set(selection.accepted_track_ids) == {t.track_id for i, t in
                                                  enumerate(scene.tracks) if i % 2 == 0}
+
+
+def test_a_group_seen_on_many_more_passes_wins_over_a_tighter_one() -> None:
+    """A car of the vehicle's size following it agrees only on the passes of one direction
+    (3 of 8): its few hypotheses can agree in rotation better than the vehicle's 8. The
+    paper's lowest mean angle picked it, and the vehicle was then refused as its rival (a
+    thirty-ninth probe). The groups seen on about as many passes as the best contend; among
+    them the lowest angle wins, ties going to more passes."""
+    from types import SimpleNamespace
+
+    def cluster(passes: int, angle: float, rms: float = 0.3) -> Any:
+        return SimpleNamespace(n_passes=passes, mean_angle_deg=angle,
+                               fit=SimpleNamespace(rms_m=rms))
+
+    cfg = CalibConfig().hypotheses
+    vehicle, follower = cluster(8, 1.6), cluster(3, 0.05)
+    assert hypotheses._accepted_cluster([follower, vehicle], cfg) is vehicle
+    # about as many passes: the paper's rule decides
+    tighter = cluster(7, 0.05)
+    assert hypotheses._accepted_cluster([vehicle, tighter], cfg) is tighter
+    # within the angle tie, more passes, then the better fit
+    close = cluster(7, 1.6 - 0.5 * cfg.angle_tie_deg)
+    assert hypotheses._accepted_cluster([close, vehicle], cfg) is vehicle
+    twin = cluster(8, 1.6, rms=0.2)
+    assert hypotheses._accepted_cluster([vehicle, twin], cfg) is twin
 
 
 def test_short_tracks_make_no_hypothesis() -> None:

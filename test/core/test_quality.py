@@ -10,7 +10,7 @@ from calib_scene import PARKED, YAW0_DEG, make_scene
 from radar_calib_ros import metrics
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import hypotheses, polygon, quality, registration
-from radar_calib_ros.recording import interpolate_poses
+from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.types import Extrinsics, Refinement
 
 
@@ -303,6 +303,37 @@ def test_a_box_misfit_from_targets_not_moving_with_the_vehicle_is_not_the_boxs()
     assert found[1] < 0.75 * paper.outlier_distance_m
     trailing = replace(rec, targets=replace(rec.targets, positions_m=positions))
     assert quality._misfit_not_the_vehicles(truth, trailing, index, cfg) is None
+
+
+def test_a_box_misfit_from_a_car_alongside_is_not_the_boxs() -> None:
+    """A car of the vehicle's size in the next lane at its speed on every pass moves as it
+    does (no radial velocity tells it) and joins its tracks: delta_op 1-2 m, and the advice
+    blamed vehicle.* and the clock (a thirty-ninth probe, result right to 3-15 cm). Targets
+    a lane to one side are named as company; a box too small (targets just outside it, all
+    around) or a longer vehicle (ahead and behind) are not."""
+    scene = make_scene(n_passes=5)
+    selection = _selection(scene)
+    truth, rec, cfg = scene.truth, scene.recording, scene.config
+    index = np.asarray(scene.tracked.target_index)[np.isin(
+        scene.tracked.track_id, selection.accepted_track_ids)]
+    assert quality._misfit_beside(truth, rec, index, cfg) is None
+    poses = interpolate_poses(rec.vehicle, rec.target_stamps_ns[index], cfg.sync.max_pose_gap)
+    company = np.random.default_rng(2).random(index.size) < 0.45
+    heading = np.column_stack([np.cos(poses.yaw_rad), np.sin(poses.yaw_rad),
+                               np.zeros(index.size)])
+    right = np.column_stack([heading[:, 1], -heading[:, 0], np.zeros(index.size)])
+
+    def moved(shift: np.ndarray) -> Recording:
+        positions = rec.targets.positions_m.copy()
+        positions[index[company]] = truth.inverse_apply(
+            truth.apply(positions[index[company]]) + shift[company])
+        return replace(rec, targets=replace(rec.targets, positions_m=positions))
+
+    found = quality._misfit_beside(truth, moved(3.5 * right), index, cfg)
+    assert found is not None and found[1] == 'to the right of', found
+    assert 0.3 < found[0] < 0.6 and found[2] < 1.0
+    # a longer vehicle than configured: its targets ahead, not beside
+    assert quality._misfit_beside(truth, moved(6.0 * heading), index, cfg) is None
 
 
 def test_one_direction_is_named_as_a_compass_heading() -> None:

@@ -890,6 +890,32 @@ def test_a_direction_driven_on_the_other_carriageway_counts_as_driven(
     assert any(not c.driven for c in seen['candidates'])
 
 
+def test_a_fit_that_moves_tilt_and_height_alone_has_not_run_off() -> None:
+    """Clutter near the radar tilts stage 4's plane: the start is degrees off in roll and
+    pitch and metres in height, and the vehicle's elevations take the fit back (a probe's
+    spray: 12.3 deg and 6.6 m, to within 0.1 deg of the truth; it used to be refused).
+    Horizontal and yaw runs stay run-offs."""
+    rot = Rotation.from_euler('xyz', [0.5, 4.0, 40.0], degrees=True).as_matrix()
+    start = Extrinsics(rot, np.array([10.0, -5.0, 6.0]), 0.0)
+
+    def moved(rpy_deg: tuple[float, float, float], shift: tuple[float, float, float]
+              ) -> Extrinsics:
+        turn = Rotation.from_euler('xyz', rpy_deg, degrees=True).as_matrix()
+        return Extrinsics(turn @ rot, start.translation_m + np.asarray(shift), 0.0)
+
+    check = refine_covariance._check_not_diverged
+    assert check(start, moved((0.3, -0.5, 0.4), (0.3, 0.2, 0.1))) is None   # the usual
+    tilt, vertical = check(start, moved((-7.0, 9.5, 0.3), (0.3, 0.1, 6.6)))
+    assert tilt == pytest.approx(math.hypot(7.0, 9.5), abs=0.3) and vertical == pytest.approx(6.6)
+    with pytest.raises(refine_covariance._Diverged, match='ran 6.0 m'):
+        check(start, moved((0.0, 0.0, 0.0), (6.0, 0.0, 0.0)))
+    with pytest.raises(refine_covariance._Diverged, match='12.0 deg'):
+        check(start, moved((0.0, 0.0, 12.0), (0.0, 0.0, 0.0)))
+    # a 2-D radar measures no tilt: there a tilt of 12 deg is a run-off as before
+    with pytest.raises(refine_covariance._Diverged):
+        check(start, moved((-7.0, 9.5, 0.3), (0.3, 0.1, 0.0)), planar=True)
+
+
 def test_a_fit_running_off_along_the_boresight_is_held_where_every_drive_runs_along_it(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Every drive heads towards or away from the radar: a fit that runs off (here the
