@@ -142,6 +142,12 @@ def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | N
         lines.insert(2, f'  reference  pose point {vehicle.ref_height:.2f} m above the road, '
                      f'{vehicle.rear_overhang:.2f} m ahead of the rear bumper '
                      '(vehicle.ref_height, rear_overhang): the altitude rests on it')
+    prior = q.get('reflection_height_prior_m')
+    if isinstance(prior, list) and len(prior) == 2:
+        lines.insert(3 if vehicle is not None else 2,
+                     f'  heights    the vehicle\'s targets taken as {prior[0]:.2f} +- '
+                     f'{prior[1]:.2f} m above the road on average (refine.reflection_height_m, '
+                     'scaled with vehicle.height): the altitude rests on that too, one to one')
     if sources:
         lines.insert(1, '  topics     ' + ', '.join(
             f'{_ROLE_NAMES.get(role, role)} {topic}' for role, topic in sources.items()))

@@ -172,6 +172,13 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         if 'azimuth_noise_deg' in refinement.diagnostics:
             extra['azimuth_noise_deg'] = round(
                 float(refinement.diagnostics['azimuth_noise_deg']), 2)
+        if 'reflection_height_prior_m' in refinement.diagnostics:
+            # what the altitude rests on beside the pose's reference point (said in the
+            # summary: a fortieth probe's van, reflecting 0.7 m higher, put the radar 0.7 m
+            # low with nothing printed about heights)
+            extra['reflection_height_prior_m'] = [round(float(v), 3) for v in
+                                                  refinement.diagnostics[
+                                                      'reflection_height_prior_m']]
         if 'elevation_noise_deg' in refinement.diagnostics:
             extra['elevation_noise_deg'] = round(
                 float(refinement.diagnostics['elevation_noise_deg']), 2)

@@ -365,11 +365,11 @@ def figure_hypotheses(selection: HypothesisSelection, final: Extrinsics) -> Figu
             ax_ang.plot(sizes[k], shown, mark, color=colour_of.get(k, 'C0'), ms=6, alpha=0.8)
     ax_ang.set_yscale('log')
     ax_ang.set_xlabel('hypotheses in the cluster')
-    ax_ang.set_ylabel('mean pairwise rotation angle of all its hypotheses [deg] (log)')
+    ax_ang.set_ylabel('mean pairwise rotation angle, all members [deg] (log)')
     # a probe read the accepted cluster's 9.7 deg against hypotheses.max_mean_angle_deg (5)
     # as a broken rule: the limit is on the members that agree, not on all of them
-    ax_ang.set_title('Rotation agreement per cluster (triangle: not computed;\nthe limit '
-                     'applies to the members that agree, the accepted ones)', fontsize=10)
+    ax_ang.set_title('Rotation agreement per cluster, all members\n(the limit holds for '
+                     'those that agree;\ntriangle: not computed)', fontsize=9)
     ax_ang.grid(True, which='both', alpha=0.3)
     if sizes:
         ax_ang.set_xlim(0, max(sizes.values()) + 2)

@@ -407,16 +407,23 @@ def test_jackknife_of_a_linear_mean_is_the_classic_one() -> None:
     np.testing.assert_allclose(pc.influences[:, 0], loo - values.mean(), atol=1e-12)
 
 
+def _mean_over_passes(seed: int, prior: float) -> tuple[Any, ...]:
+    """A mean of 40 values in 8 passes of 5 as a least-squares problem with a prior of
+    weight ``prior`` on it: (values, pass ids, Jacobian, residuals, the prior's Hessian,
+    the jackknife over passes)."""
+    values = np.random.default_rng(seed).normal(size=40)
+    pass_id = np.repeat(np.arange(8), 5)
+    jac = np.ones((40, 1))
+    res = values.mean() - values     # residual = model - measurement, d res / d mean = 1
+    hessian = np.array([[prior]])
+    return (values, pass_id, jac, res, hessian,
+            uncertainty.pass_jackknife_covariance(jac, res, pass_id, hessian))
+
+
 def test_pass_scatter_is_the_jackknife_without_the_priors() -> None:
     """What a check on another recording compares with: the passes' disagreement alone; the
     priors' term (the same in both fits) is what the full covariance adds on top."""
-    rng = np.random.default_rng(5)
-    values = rng.normal(size=40)
-    pass_id = np.repeat(np.arange(8), 5)
-    jac = np.ones((40, 1))
-    res = values.mean() - values
-    prior = np.array([[4.0]])
-    pc = uncertainty.pass_jackknife_covariance(jac, res, pass_id, prior)
+    _, pass_id, jac, res, prior, pc = _mean_over_passes(5, 4.0)
     scatter = uncertainty.pass_scatter(pc)
     h_inv = 1.0 / (40.0 + 4.0)
     assert pc.covariance[0, 0] - scatter[0, 0] == pytest.approx(h_inv * 4.0 * h_inv)
@@ -428,13 +435,7 @@ def test_pass_scatter_is_the_jackknife_without_the_priors() -> None:
 def test_leaving_out_groups_of_passes_is_the_jackknife_over_those_groups() -> None:
     """The halves of a drive from the per-pass products equal a jackknife run over the
     halves' rows, and for a mean they are the means of the other half minus the mean."""
-    rng = np.random.default_rng(4)
-    values = rng.normal(size=40)
-    pass_id = np.repeat(np.arange(8), 5)
-    jac = np.ones((40, 1))
-    res = values.mean() - values
-    prior = np.array([[0.5]])
-    pc = uncertainty.pass_jackknife_covariance(jac, res, pass_id, prior)
+    values, pass_id, jac, res, prior, pc = _mean_over_passes(4, 0.5)
     half_of_pass = (np.arange(8) >= 4).astype(np.int64)
     grouped = uncertainty.group_influences(pc, half_of_pass, prior)
     direct = uncertainty.pass_jackknife_covariance(jac, res, half_of_pass[pass_id], prior)
