@@ -93,7 +93,7 @@ class Evaluation:
     unlike_fraction: float = 0.0
     paper_alike: metrics.PaperMetrics | None = None
     agreement: Agreement | None = None
-    vehicle_note: str | None = None
+    notes: tuple[str, ...] = ()
 
 
 #: What the agreement compares, in the calibration's own axes: the position along and across
@@ -138,6 +138,8 @@ class Agreement:
         """The verdict as a few words."""
         if self.verdict == 'cannot tell':
             return 'cannot tell whether the calibration holds on this recording'
+        if self.verdict == 'doubtful':
+            return 'the calibration is doubtful on this recording'
         return f'the calibration {self.verdict} on this recording'
 
     @property
@@ -175,7 +177,9 @@ def calibration_extrinsics(calibration: Mapping[str, Any], frame: LocalFrame,
 
     The result's EPSG code may differ from the recording's (``world.epsg``): the local frame
     keeps its origin and converts from the result's zone. The result's clock offset is the
-    total one; ``Extrinsics.time_offset_s`` is what comes on top of ``sync.time_offset``.
+    total one; ``Extrinsics.time_offset_s`` is what comes on top of ``sync.time_offset``:
+    the fitted part of the total where the result says which part was given
+    (``quality.sync_time_offset_s``), else the total less this ``sync.time_offset``.
 
     Raises
     ------
@@ -188,7 +192,15 @@ def calibration_extrinsics(calibration: Mapping[str, Any], frame: LocalFrame,
     rotation = Rotation.from_quat(np.asarray(calibration['quaternion_xyzw'], float)).as_matrix()
     if not np.all(np.isfinite(rotation)):
         raise ResultFileError("the calibration's quaternion_xyzw is not a rotation")
-    offset = calibration_time_offset_s(calibration) - config.sync.time_offset
+    # On top of this recording's sync.time_offset: the fitted part of the result's total
+    # where the result says which part was given (its own sync.time_offset), so that a
+    # recording on another clock is evaluated with its own; older results hold the total
+    # only, taken as it is.
+    given = (calibration.get('quality') or {}).get('sync_time_offset_s')
+    if isinstance(given, (int, float)) and not isinstance(given, bool) and math.isfinite(given):
+        offset = calibration_time_offset_s(calibration) - float(given)
+    else:
+        offset = calibration_time_offset_s(calibration) - config.sync.time_offset
     return utm_to_extrinsics(rotation, np.asarray(calibration['translation'], float), frame,
                              offset)
 
@@ -272,7 +284,9 @@ def evaluate_tracked(recording: Recording, tracked: TrackedTargets,
             'evaluate', f'the calibration vehicle is never seen: none of the {n_tracks} tracks '
             f'lies within {metrics.PAPER_MAX_MEAN_OFFSET_M:g} m of it on average under this '
             'calibration' + (_other_site(calibration, extrinsics, recording) or
-                             ' (wrong recording, vehicle parameters or clock offset? Or a '
+                             ' (wrong recording, vehicle parameters or clock offset? A '
+                             'recording on another clock than the calibration\'s, GPS time '
+                             'against UTC, say, takes sync.time_offset in --params. Or a '
                              'calibration that no longer fits: a radar re-aimed by 20 deg '
                              'puts every track metres from the vehicle)'))
     index = metrics.track_target_index(tracked, ids)
@@ -301,7 +315,32 @@ def evaluate_tracked(recording: Recording, tracked: TrackedTargets,
 
     return Evaluation(dict(calibration), extrinsics, paper, bin_by_range(paper, range_edges_m),
                       ids, index, n_tracks, errors, recording, tracked, unlike_fraction,
-                      paper_alike, vehicle_note=_vehicle_note(calibration, config))
+                      paper_alike, notes=tuple(n for n in (
+                          _vehicle_note(calibration, config),
+                          _own_recording_note(calibration, recording)) if n is not None))
+
+
+def _own_recording_note(calibration: Mapping[str, Any], recording: Recording) -> str | None:
+    """A sentence where this recording is the one the calibration was made from (its first
+    and last radar stamps to the millisecond, its frame and target counts:
+    ``quality.recording_span_s``, ``recording_frames``, ``recording_targets``, written since
+    results carry them), else None: a fit on its own data agrees with it by construction (a
+    forty-first probe read that 'holds' as a check). Not by the stamps and frames alone:
+    simulated drives of one length often all start at one stamp."""
+    q = calibration.get('quality') or {}
+    span, frames = q.get('recording_span_s'), q.get('recording_frames')
+    targets = q.get('recording_targets')
+    if not (isinstance(span, list) and len(span) == 2 and isinstance(frames, int)
+            and isinstance(targets, int) and all(isinstance(v, (int, float)) for v in span)):
+        return None
+    stamps = recording.frame_stamps_ns
+    same = (stamps.size == frames and len(recording.targets) == targets
+            and abs(float(stamps[0]) * 1e-9 - float(span[0])) < 1e-3
+            and abs(float(stamps[-1]) * 1e-9 - float(span[1])) < 1e-3)
+    if not same:
+        return None
+    return ('this is the recording the calibration was made from: the verdict then agrees '
+            'by construction and checks nothing; evaluate on another drive')
 
 
 #: A box parameter that differs by more than this from the calibration's is named [m].
@@ -326,56 +365,88 @@ def _vehicle_note(calibration: Mapping[str, Any], config: CalibConfig) -> str | 
         return None
     return ('the calibration was made with another vehicle box (' + ', '.join(differ) + '): '
             'the paper\'s figures depend on the box and read a box that is not this '
-            'vehicle\'s as a calibration error (the verdict much less); give this '
-            'recording\'s vehicle with --params')
+            'vehicle\'s as a calibration error (the verdict much less): check that vehicle.* '
+            '(--params) describe this recording\'s vehicle')
 
 
 def check_agreement(evaluation: Evaluation, config: CalibConfig) -> Agreement:
     """Fit the radar on the evaluation's recording alone and compare it with the calibration.
 
     The final refinement (stage 8) runs from the calibration under test on the tracks the
-    evaluation associated with the vehicle. Each difference in the calibration's own axes
-    (``AGREEMENT_COMPONENTS``) is judged against the two estimates' 1-sigma together: this
-    fit's (a jackknife over this recording's passes, as calibrate's) and the one the result
-    file reports (per rotation axis where it has them, else its RMS angle for each; none
-    where it has none, a surveyed calibration, say). The vertical's is mostly the prior of
-    the vehicle's mean reflection height: an altitude off by less than about twice it is not
-    seen (the verdict's reason says how much).
+    evaluation associated with the vehicle (``_judged_fit``); each difference in the
+    calibration's own axes (``AGREEMENT_COMPONENTS``) is judged against the two estimates'
+    1-sigma together. A step in the passes' own yaws (``_yaw_step_during``) or the fit's
+    own halves check says the radar moved during the recording. A knock in pitch or roll
+    during the drive leaves a blend that agrees with both mounts within the scatter the
+    knock itself inflates (a forty-first probe: knocks of 1.5-2 deg 'held' or were
+    'doubtful'); each half judged on its own (three passes' scatter) did not find them
+    either, so that is left to a second drive.
 
     Why a refit and not the paper's figures: they are flat or point the wrong way for
     decimetres along the boresight and a degree of pitch, and blind to altitude and roll;
     the refit measures all six from the same physics calibrate used (the radial velocities
     pin the yaw, the views the position).
     """
+    stated = _stated_sigmas(evaluation.calibration)
+    whole, diagnostics, fitted = _judged_fit(evaluation, config, stated)
+    if whole.verdict == 'cannot tell' or fitted is None:
+        return whole
+    # the passes' own yaws first: they say by how much each side is off the calibration
+    # (the fit's own step is taken against its blend of the two mounts)
+    moved = (_yaw_step_during(evaluation, config, fitted, whole.differences['yaw_deg'])
+             or _moved_during(diagnostics, evaluation.recording))
+    if moved is not None:
+        # Whatever the blend of before and after agrees with, a calibration of one mount
+        # does not hold for both (a thirty-sixth probe's knock of 1.5 deg mid-drive: the
+        # blend was 0.7 deg off, 'doubtful' at 1.8 sigma of a scatter the knock inflated).
+        named = _named_off(whole)
+        return replace(whole, moved=moved, verdict='does not hold', reason=(
+            f'{moved[0].lower()}{moved[1:]}: a calibration holds for one mount at most, '
+            'calibrate again on a recording made after the move' + (
+                f' (the fit over the whole recording: {named})' if named else '')))
+    return whole
+
+
+def _judged_fit(evaluation: Evaluation, config: CalibConfig, stated: Mapping[str, float]
+                ) -> tuple[Agreement, Mapping[str, Any], Extrinsics | None]:
+    """The refit on the vehicle's tracks from the calibration, its differences per component and
+    the verdict on them (nothing about a moved radar), with the fit's diagnostics and
+    estimate (None where it failed).
+
+    Each difference is judged against: this fit's scatter over passes (without the priors
+    it shares with the calibration: the vehicle's mean reflection height, its change with
+    range, the model's tilt, which bias both alike and do not part them), plus what the
+    start's own error adds where the drives leave the position to it (the start is the
+    calibration under test: a straight drive left a metre along the boresight unseen, at a
+    13-28 cm scatter), plus the calibration's stated 1-sigma. A file that states none (a
+    surveyed calibration) shares none of our priors: there the fit's whole covariance
+    counts."""
     ext = evaluation.extrinsics
-    selection = HypothesisSelection(
-        (), np.zeros(0, np.int64), -1, {},
-        tuple(int(i) for i in evaluation.vehicle_track_ids), ext, 0)
+    selection = HypothesisSelection((), np.zeros(0, np.int64), -1, {},
+                                    tuple(int(i) for i in evaluation.vehicle_track_ids),
+                                    ext, 0)
     try:
         fit = refine.refine_extrinsics(ext, evaluation.recording, evaluation.tracked,
                                        selection, config)
     except InsufficientDataError as err:
         return Agreement('cannot tell', 'the radar could not be fitted on this recording '
-                         f'alone ({err.reason.rstrip(".")})')
-    # The fit here shares the calibration's priors (the vehicle's mean reflection height,
-    # its change with range, the reflection model's tilt): they bias both alike and do not
-    # part them, so only this recording's pass-to-pass scatter joins the calibration's
-    # stated uncertainty, which holds its priors once.
-    scatter = np.asarray(fit.diagnostics.get('covariance_pass_scatter', fit.covariance),
-                         np.float64)
-    differences, fit_sigmas = _differences_in_calibration_axes(ext, fit.extrinsics, scatter)
-    stated = _stated_sigmas(evaluation.calibration)
-    sigmas = {k: math.hypot(fit_sigmas[k], stated.get(k, 0.0)) for k in differences}
-    # the passes' own yaws against the calibration first: they say by how much each side
-    # is off it (the fit's own step is taken against its blend of the two mounts)
-    moved = (_yaw_step_during(evaluation, config)
-             or _moved_during(fit.diagnostics, evaluation.recording))
+                         f'alone ({err.reason.rstrip(".")})'), {}, None
+    d = fit.diagnostics
+    own = np.asarray(d.get('covariance_pass_scatter', fit.covariance), np.float64) \
+        + np.asarray(d.get('covariance_start_term', np.zeros((7, 7))), np.float64)
+    differences, fit_sigmas = _differences_in_calibration_axes(ext, fit.extrinsics, own)
+    _, full_sigmas = _differences_in_calibration_axes(ext, fit.extrinsics, fit.covariance)
+    sigmas = {k: (math.hypot(fit_sigmas[k], stated[k]) if k in stated else full_sigmas[k])
+              for k in differences}
     agreement = Agreement('holds', '', differences, sigmas, int(fit.n_passes),
-                          float(fit.extrinsics.time_offset_s - ext.time_offset_s), moved)
+                          float(fit.extrinsics.time_offset_s - ext.time_offset_s))
     if not all(math.isfinite(v) and v > 0 for v in sigmas.values()):
         return replace(agreement, verdict='cannot tell', reason=(
             'the fit on this recording alone has no uncertainty (fewer than two passes '
-            'through the view?)'))
+            'through the view?)')), d, fit.extrinsics
+    z = agreement.z
+    worst = max(z.values())
+    named = _named_off(agreement)
     if fit.n_passes < AGREEMENT_MIN_PASSES:
         # two passes' scatter has one degree of freedom: an axis on which they agree by
         # chance claims hundredths of a degree (a 30 s drive: 0.02 deg of roll, 26 sigma
@@ -384,19 +455,8 @@ def check_agreement(evaluation: Evaluation, config: CalibConfig) -> Agreement:
             f'the vehicle passed through the view {fit.n_passes} time'
             f'{"s" if fit.n_passes != 1 else ""} on this recording, and it takes '
             f'{AGREEMENT_MIN_PASSES} for the passes\' agreement to mean anything (as for '
-            'calibrate)'))
-    z = agreement.z
-    worst = max(z.values())
-    off = sorted((k for k in z if z[k] > AGREEMENT_HOLDS_SIGMA), key=lambda k: -z[k])
-    named = ', '.join(f'{_component_text(k, differences[k])} ({z[k]:.1f} sigma)' for k in off)
-    if moved is not None:
-        # Whatever the blend of before and after agrees with, a calibration of one mount
-        # does not hold for both (a thirty-sixth probe's knock of 1.5 deg mid-drive: the
-        # blend was 0.7 deg off, 'doubtful' at 1.8 sigma of a scatter the knock inflated).
-        return replace(agreement, verdict='does not hold', reason=(
-            f'{moved[0].lower()}{moved[1:]}: a calibration holds for one mount at most, '
-            'calibrate again on a recording made after the move' + (
-                f' (the fit over the whole recording: {named})' if named else '')))
+            'calibrate)' + (f'; they put the radar {named} from the calibration: drive '
+                            'more passes to judge that' if named else ''))), d, fit.extrinsics
     if worst > AGREEMENT_FAILS_SIGMA:
         verdict = 'does not hold'
         reason = (f'a fit on this recording alone puts the radar {named} from the '
@@ -410,11 +470,45 @@ def check_agreement(evaluation: Evaluation, config: CalibConfig) -> Agreement:
                   'check with another drive')
     else:
         verdict = 'holds'
+        unchecked = _unchecked(fit_sigmas, stated)
         reason = (f'a fit on this recording alone ({fit.n_passes} passes) agrees with the '
                   f'calibration within {AGREEMENT_HOLDS_SIGMA:g} sigma on every axis '
                   f'(the worst {worst:.1f}); an altitude off by less than about '
-                  f'{2 * sigmas["vertical_m"]:.1f} m would not show')
-    return replace(agreement, verdict=verdict, reason=reason)
+                  f'{2 * sigmas["vertical_m"]:.1f} m would not show'
+                  + (f'; this recording checks {unchecked} only loosely (its drives leave '
+                     'that open): drive across the view to check it' if unchecked else ''))
+    return replace(agreement, verdict=verdict, reason=reason), d, fit.extrinsics
+
+
+#: A component this recording checks only loosely: its own 1-sigma is this many times the
+#: calibration's stated one, and at least the floor [m, deg].
+_LOOSE_FACTOR = 3.0
+_LOOSE_FLOOR = {'along_m': 0.15, 'across_m': 0.15, 'vertical_m': 1.0, 'roll_deg': 0.5,
+                'pitch_deg': 0.5, 'yaw_deg': 0.2}
+
+
+def _unchecked(fit_sigmas: Mapping[str, float], stated: Mapping[str, float]) -> str:
+    """The components whose check here is loose, with this recording's 1-sigma, in words."""
+    loose = [k for k, v in fit_sigmas.items()
+             if v >= _LOOSE_FLOOR[k] and v >= _LOOSE_FACTOR * stated.get(k, 0.0)]
+    return ', '.join(f'{_AXIS_WORDS[k]} ({_amount(k, fit_sigmas[k])} 1-sigma)' for k in loose)
+
+
+_AXIS_WORDS = {'along_m': 'the position along the boresight',
+               'across_m': 'the position across the boresight', 'vertical_m': 'the altitude',
+               'roll_deg': 'the roll', 'pitch_deg': 'the pitch', 'yaw_deg': 'the yaw'}
+
+
+def _amount(name: str, value: float) -> str:
+    return f'{100 * value:.0f} cm' if name.endswith('_m') else f'{value:.2f} deg'
+
+
+def _named_off(agreement: Agreement) -> str:
+    """The components beyond ``AGREEMENT_HOLDS_SIGMA``, worst first, in words."""
+    z = agreement.z
+    off = sorted((k for k in z if z[k] > AGREEMENT_HOLDS_SIGMA), key=lambda k: -z[k])
+    return ', '.join(f'{_component_text(k, agreement.differences[k])} ({z[k]:.1f} sigma)'
+                     for k in off)
 
 
 def _differences_in_calibration_axes(calibration: Extrinsics, fit: Extrinsics,
@@ -490,20 +584,24 @@ def _moved_during(diagnostics: Mapping[str, Any], recording: Recording) -> str |
     return None
 
 
-def _yaw_step_during(evaluation: Evaluation, config: CalibConfig) -> str | None:
-    """A step in the yaw the passes' radial velocities give against the calibration
-    (``metrics.pass_yaw_offsets``, ``refine_covariance.yaw_step``), as a sentence, else
-    None. The fit over the whole recording may miss it: it blends the mounts and its gate
-    drops the targets of the passes the blend misplaces (a thirty-sixth probe's 3 deg knock:
-    'doubtful', 1.0 deg off)."""
+def _yaw_step_during(evaluation: Evaluation, config: CalibConfig, fitted: Extrinsics,
+                     fitted_yaw_deg: float) -> str | None:
+    """A step in the yaw the passes' radial velocities give (``metrics.pass_yaw_offsets``,
+    ``refine_covariance.yaw_step``), as a sentence, else None. The fit over the whole
+    recording may miss it: it blends the mounts and its gate drops the targets of the
+    passes the blend misplaces (a thirty-sixth probe's 3 deg knock: 'doubtful', 1.0 deg
+    off). The yaws are taken against that fit (``fitted``, ``fitted_yaw_deg`` off the
+    calibration), not the calibration: a calibration off in pitch turns each pass's yaw by
+    another amount, as its view differs, and read as a step (a forty-first probe's radar
+    re-aimed 0.8 deg in pitch before the drive: 'turned by -0.3 deg during it')."""
     rec = evaluation.recording
-    yaw, weight, spans = metrics.pass_yaw_offsets(rec, evaluation.target_index,
-                                                  evaluation.extrinsics, config)
+    yaw, weight, spans = metrics.pass_yaw_offsets(rec, evaluation.target_index, fitted,
+                                                  config)
     k = refine_covariance.yaw_step(yaw, weight, config.hypotheses.min_passes)
     if k is None:
         return None
-    before = math.degrees(float(np.average(yaw[:k], weights=weight[:k])))
-    after = math.degrees(float(np.average(yaw[k:], weights=weight[k:])))
+    before = fitted_yaw_deg + math.degrees(float(np.average(yaw[:k], weights=weight[:k])))
+    after = fitted_yaw_deg + math.degrees(float(np.average(yaw[k:], weights=weight[k:])))
     t0 = int(rec.frame_stamps_ns[0])
     return (f'The radar\'s mount turned by {after - before:+.1f} deg in yaw between '
             f'{(spans[k - 1, 1] - t0) * 1e-9:.0f} s and {(spans[k, 0] - t0) * 1e-9:.0f} s '
@@ -583,7 +681,7 @@ def evaluation_dict(evaluation: Evaluation) -> dict[str, Any]:
             'closest_target_offset_m': _finite(b.closest_target_offset_m),
         } for b in evaluation.range_bins],
         'moving_unlike_vehicle_fraction': evaluation.unlike_fraction,
-        'vehicle_note': evaluation.vehicle_note,
+        'notes': list(evaluation.notes),
         'without_unlike': (None if (a := evaluation.paper_alike) is None else {
             'inlier_ratio': _finite(a.inlier_ratio),
             'outlier_distance_m': _finite(a.outlier_distance_m),
@@ -663,8 +761,7 @@ def format_evaluation(evaluation: Evaluation) -> str:
         '   final fit kept, on and around the vehicle, and so reads lower on the same '
         'recording)',
         *_unlike_lines(evaluation),
-        *([] if evaluation.vehicle_note is None else
-          [f'  note: {evaluation.vehicle_note}.']),
+        *(f'  note: {note}.' for note in evaluation.notes),
         '',
         f'  {"range [m]":<11}{"targets":>9}{"r_i [%]":>9}{"delta_op [m]":>14}'
         f'{"frames":>8}{"delta_p [m]":>13}',

@@ -283,10 +283,83 @@ def test_strict_exits_1_when_the_calibration_does_not_hold(
     assert data['agreement']['verdict'] == 'does not hold'
     assert data['agreement']['differences']['yaw_deg'] == pytest.approx(-1.0, abs=0.1)
     code, out, err = _run([*argv, '--strict'], capsys)
-    assert code == 1 and 'does not hold on this recording (--strict)' in err
+    assert code == 1 and 'does not hold on this recording (--strict: only' in err
     code, out, err = _run([*argv, '--no-verdict'], capsys)
     assert code == 0 and 'verdict' not in out
     assert json.loads((tmp_path / 'ev.json').read_text())['agreement'] is None
+    # --strict judges the verdict: without it there is nothing to judge
+    code, out, err = _run([*argv, '--no-verdict', '--strict'], capsys)
+    assert code == 2 and '--strict judges the verdict' in err and out == ''
+
+
+def test_strict_passes_only_a_calibration_that_holds(
+        sim: SimulationSummary, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An acceptance needs the calibration shown to hold: 'cannot tell' (two passes here)
+    and 'doubtful' exit 1 under --strict (a probe's 3 deg yaw error on two passes and a
+    1 m altitude error passed)."""
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    cal = tmp_path / 'cal.yaml'
+    write_result_yaml(cal, _calibration(truth))
+    argv = ['evaluate', str(sim.paths.bag), '--calibration', str(cal), '--params',
+            str(sim.paths.params)]
+    code, out, err = _run(argv, capsys)
+    assert code == 0 and 'verdict: cannot tell whether the calibration holds' in out
+    code, out, err = _run([*argv, '--strict'], capsys)
+    assert code == 1 and 'error: cannot tell whether the calibration holds' in err
+
+
+def test_a_file_without_uncertainty_is_judged_by_the_fit_alone(drive: Any) -> None:
+    """A surveyed calibration states no 1-sigma and shares none of our priors: it is
+    judged against the fit's whole uncertainty, not as if exact (a probe's right file came
+    out 'doubtful' at a 2.6 cm scatter)."""
+    from radar_calib_ros.io.bag import read_recording
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    g = evaluate.evaluate_recording(recording, _calibration(summary.truth), config).agreement
+    assert g is not None and g.verdict == 'holds', g
+    # the vertical judged by the fit's covariance, its reflection-height prior included
+    assert g.sigmas['vertical_m'] > 0.2
+
+
+def test_the_result_says_which_clock_offset_was_given(recording: Recording,
+                                                      config: CalibConfig) -> None:
+    """A result's clock offset is the total; where it says which part was given
+    (sync_time_offset_s), a recording on another clock takes its own sync.time_offset
+    plus the fitted rest (a probe's 18 s GPS/UTC drive was 'never seen' with
+    sync.time_offset -18 in --params). Older results: the total, as before."""
+    from radar_calib_ros.live import replace_config
+    cal = {'epsg': recording.frame.epsg, 'translation': [500000.0, 5300000.0, 500.0],
+           'quaternion_xyzw': [0.0, 0.0, 0.0, 1.0],
+           'quality': {'time_offset_s': 0.02, 'sync_time_offset_s': 0.0}}
+    gps = replace_config(config, **{'sync.time_offset': -18.0})
+    ext = evaluate.calibration_extrinsics(cal, recording.frame, gps)
+    assert ext.time_offset_s == pytest.approx(0.02)    # on top of -18 s: -17.98 s in all
+    del cal['quality']['sync_time_offset_s']
+    ext = evaluate.calibration_extrinsics(cal, recording.frame, gps)
+    assert ext.time_offset_s == pytest.approx(18.02)   # the total, 0.02 s, in all
+
+
+def test_the_calibrations_own_recording_is_named(drive: Any, sim: SimulationSummary,
+                                                 config: CalibConfig,
+                                                 recording: Recording) -> None:
+    """Evaluated on the recording it was made from, a calibration agrees by construction:
+    the evaluation says so; on another recording it does not."""
+    from radar_calib_ros.io.bag import read_recording
+    from radar_calib_ros.pipeline import run_calibration
+    summary, drive_config = drive
+    own = read_recording(summary.paths.bag, drive_config)
+    cal = run_calibration(own, drive_config).calibration(drive_config)
+    same = evaluate.evaluate_tracked(own, evaluate.track_targets(own, drive_config), cal,
+                                     drive_config)
+    assert any('the recording the calibration was made from' in n for n in same.notes)
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    other_cal = {**_calibration(truth), 'quality': {**cal['quality'],
+                                                    'time_offset_s': truth['time_offset_s']}}
+    other = evaluate.evaluate_tracked(recording, evaluate.track_targets(recording, config),
+                                      other_cal, config)
+    assert not any('made from' in n for n in other.notes)
 
 
 def test_no_verdict_from_two_passes_or_a_failed_fit(
@@ -340,18 +413,18 @@ def test_another_vehicle_box_than_the_calibrations_is_named(
                                  'rear_overhang': v.rear_overhang, 'ref_height': v.ref_height}
     same = evaluate.evaluate_tracked(recording, evaluate.track_targets(recording, config), cal,
                                      config)
-    assert same.vehicle_note is None
+    assert same.notes == ()
     van = replace_config(config, **{'vehicle.length': v.length + 1.0})
     other = evaluate.evaluate_tracked(recording, evaluate.track_targets(recording, van), cal,
                                       van)
-    assert other.vehicle_note is not None
-    assert f'length {v.length + 1.0:g} m here, {v.length:g} m there' in other.vehicle_note
+    assert len(other.notes) == 1
+    assert f'length {v.length + 1.0:g} m here, {v.length:g} m there' in other.notes[0]
     assert 'note: the calibration was made with another vehicle box' in (
         evaluate.format_evaluation(other))
-    assert evaluate.evaluation_dict(other)['vehicle_note'] == other.vehicle_note
+    assert evaluate.evaluation_dict(other)['notes'] == list(other.notes)
     del cal['quality']['vehicle']
     assert evaluate.evaluate_tracked(recording, evaluate.track_targets(recording, van), cal,
-                                     van).vehicle_note is None
+                                     van).notes == ()
 
 
 def test_a_mount_turned_during_the_recording_does_not_hold(drive: Any) -> None:
@@ -381,7 +454,7 @@ def test_a_mount_turned_during_the_recording_does_not_hold(drive: Any) -> None:
                                        config)[0]
     np.testing.assert_allclose(np.degrees(shifted), np.degrees(yaw[:shifted.size]) - 0.5,
                                atol=0.05)
-    assert evaluate._yaw_step_during(before, config) is None
+    assert evaluate._yaw_step_during(before, config, before.extrinsics, 0.0) is None
     # the mount turns 2 deg anticlockwise between the second and third pass: from then on
     # the world lies 2 deg clockwise in the sensor frame; radial velocities are unchanged
     knock_ns = (spans[1, 1] + spans[2, 0]) // 2
@@ -391,7 +464,7 @@ def test_a_mount_turned_during_the_recording_does_not_hold(drive: Any) -> None:
     knocked = replace(recording, targets=replace(recording.targets, positions_m=p))
     ev = evaluate.evaluate_tracked(knocked, evaluate.track_targets(knocked, config), cal,
                                    config)
-    step = evaluate._yaw_step_during(ev, config)
+    step = evaluate._yaw_step_during(ev, config, ev.extrinsics, 0.0)
     assert step is not None, step
     turn = re.search(r'turned by ([-+.\d]+) deg in yaw between (\d+) s and (\d+) s', step)
     assert turn is not None, step

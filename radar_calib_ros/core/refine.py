@@ -917,6 +917,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         'covariance_bands': _pose_block(pb.covariance, estimate_tau),
         # the passes' disagreement alone, without the priors (``evaluate``'s agreement)
         'covariance_pass_scatter': _pose_block(uncertainty.pass_scatter(pc), estimate_tau),
+        # what the start's own error adds where the data leave the position to it
+        'covariance_start_term': _pose_block(start_term, estimate_tau),
     })
     return Refinement(extrinsics=est, covariance=cov7, n_targets=int(data.index.size),
                       n_passes=pc.n_passes,

@@ -125,8 +125,8 @@ def _evaluation_section(evaluation: Evaluation, source: str) -> str:
                      f'<td>{_num(b.outlier_distance_m, ".3f")}</td><td>{b.n_frames}</td>'
                      f'<td>{_num(b.closest_target_offset_m, ".3f")}</td></tr>')
     table.append('</table>')
-    if evaluation.vehicle_note:
-        head += f'<p class="note">Note: {_e(evaluation.vehicle_note)}.</p>'
+    for note in evaluation.notes:
+        head += f'<p class="note">Note: {_e(note)}.</p>'
     out = head + _rows(rows) + ''.join(table) + _agreement_section(evaluation)
     e = evaluation.errors
     if e is not None:
