@@ -388,23 +388,23 @@ def check_agreement(evaluation: Evaluation, config: CalibConfig) -> Agreement:
     pin the yaw, the views the position).
     """
     stated = _stated_sigmas(evaluation.calibration)
-    whole, diagnostics, fitted = _judged_fit(evaluation, config, stated)
-    if whole.verdict == 'cannot tell' or fitted is None:
-        return whole
+    agreement, diagnostics, fitted = _judged_fit(evaluation, config, stated)
+    if agreement.verdict == 'cannot tell' or fitted is None:
+        return agreement
     # the passes' own yaws first: they say by how much each side is off the calibration
     # (the fit's own step is taken against its blend of the two mounts)
-    moved = (_yaw_step_during(evaluation, config, fitted, whole.differences['yaw_deg'])
+    moved = (_yaw_step_during(evaluation, config, fitted, agreement.differences['yaw_deg'])
              or _moved_during(diagnostics, evaluation.recording))
     if moved is not None:
         # Whatever the blend of before and after agrees with, a calibration of one mount
         # does not hold for both (a thirty-sixth probe's knock of 1.5 deg mid-drive: the
         # blend was 0.7 deg off, 'doubtful' at 1.8 sigma of a scatter the knock inflated).
-        named = _named_off(whole)
-        return replace(whole, moved=moved, verdict='does not hold', reason=(
+        named = _named_off(agreement)
+        return replace(agreement, moved=moved, verdict='does not hold', reason=(
             f'{moved[0].lower()}{moved[1:]}: a calibration holds for one mount at most, '
             'calibrate again on a recording made after the move' + (
                 f' (the fit over the whole recording: {named})' if named else '')))
-    return whole
+    return agreement
 
 
 def _judged_fit(evaluation: Evaluation, config: CalibConfig, stated: Mapping[str, float]
