@@ -284,7 +284,8 @@ def evaluate_tracked(recording: Recording, tracked: TrackedTargets,
             'evaluate', f'the calibration vehicle is never seen: none of the {n_tracks} tracks '
             f'lies within {metrics.PAPER_MAX_MEAN_OFFSET_M:g} m of it on average under this '
             'calibration' + (_other_site(calibration, extrinsics, recording) or
-                             ' (wrong recording, vehicle parameters or clock offset? A '
+                             ' (wrong recording, another radar\'s result, vehicle '
+                             'parameters or clock offset? A '
                              'recording on another clock than the calibration\'s, GPS time '
                              'against UTC, say, takes sync.time_offset in --params. Or a '
                              'calibration that no longer fits: a radar re-aimed by 20 deg '
