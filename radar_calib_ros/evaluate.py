@@ -122,7 +122,8 @@ class Agreement:
     n_passes : the passes the fit here used;
     time_offset_s : the radar clock offset this recording shows on top of the calibration's
     (recordings of other days may differ: reported, not judged) [s];
-    moved : the fit's own finding that the radar moved during this recording, or None.
+    moved : a sentence where the radar moved during this recording (a step in the passes'
+    own yaws, or the fit's own halves check), else None.
     """
 
     verdict: str
