@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from radar_calib_ros import metrics
-from radar_calib_ros.core import refine, refine_covariance
+from radar_calib_ros.core import quality, refine, refine_covariance
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.pipeline import VEHICLE_BOX_PARAMETERS, track_targets
 from radar_calib_ros.errors import InsufficientDataError, ResultFileError
@@ -165,10 +165,18 @@ def calibration_time_offset_s(calibration: Mapping[str, Any]) -> float:
     """
     for value in ((calibration.get('quality') or {}).get('time_offset_s'),
                   calibration.get('time_offset_s')):
-        if isinstance(value, (int, float)) and not isinstance(value, bool) \
-                and math.isfinite(value):
-            return float(value)
+        if (number := _number(value)) is not None:
+            return number
     return 0.0
+
+
+def _number(value: Any) -> float | None:
+    """A result file's value as a finite float, None where it is none (missing, null, a
+    boolean, text)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value):
+        return None
+    return float(value)
 
 
 def calibration_extrinsics(calibration: Mapping[str, Any], frame: LocalFrame,
@@ -197,9 +205,9 @@ def calibration_extrinsics(calibration: Mapping[str, Any], frame: LocalFrame,
     # where the result says which part was given (its own sync.time_offset), so that a
     # recording on another clock is evaluated with its own; older results hold the total
     # only, taken as it is.
-    given = (calibration.get('quality') or {}).get('sync_time_offset_s')
-    if isinstance(given, (int, float)) and not isinstance(given, bool) and math.isfinite(given):
-        offset = calibration_time_offset_s(calibration) - float(given)
+    given = _number((calibration.get('quality') or {}).get('sync_time_offset_s'))
+    if given is not None:
+        offset = calibration_time_offset_s(calibration) - given
     else:
         offset = calibration_time_offset_s(calibration) - config.sync.time_offset
     return utm_to_extrinsics(rotation, np.asarray(calibration['translation'], float), frame,
@@ -357,12 +365,11 @@ def _vehicle_note(calibration: Mapping[str, Any], config: CalibConfig) -> str | 
         return None
     differ = []
     for name in VEHICLE_BOX_PARAMETERS:
-        value = stated.get(name)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if (value := _number(stated.get(name))) is None:
             continue
         here = float(getattr(config.vehicle, name))
-        if abs(here - float(value)) > _BOX_DIFFERS_M:
-            differ.append(f'{name} {here:g} m here, {float(value):g} m there')
+        if abs(here - value) > _BOX_DIFFERS_M:
+            differ.append(f'{name} {here:g} m here, {value:g} m there')
     if not differ:
         return None
     return ('the calibration was made with another vehicle box (' + ', '.join(differ) + '): '
@@ -436,8 +443,9 @@ def _judged_fit(evaluation: Evaluation, config: CalibConfig, stated: Mapping[str
     d = fit.diagnostics
     own = np.asarray(d.get('covariance_pass_scatter', fit.covariance), np.float64) \
         + np.asarray(d.get('covariance_start_term', np.zeros((7, 7))), np.float64)
-    differences, fit_sigmas = _differences_in_calibration_axes(ext, fit.extrinsics, own)
-    _, full_sigmas = _differences_in_calibration_axes(ext, fit.extrinsics, fit.covariance)
+    differences = _differences_in_calibration_axes(ext, fit.extrinsics)
+    fit_sigmas = _fit_sigmas(own, ext)
+    full_sigmas = _fit_sigmas(fit.covariance, ext)
     sigmas = {k: (math.hypot(fit_sigmas[k], stated[k]) if k in stated else full_sigmas[k])
               for k in differences}
     agreement = Agreement('holds', '', differences, sigmas, int(fit.n_passes),
@@ -513,30 +521,23 @@ def _named_off(agreement: Agreement) -> str:
                      for k in off)
 
 
-def _differences_in_calibration_axes(calibration: Extrinsics, fit: Extrinsics,
-                                     covariance: np.ndarray
-                                     ) -> tuple[dict[str, float], dict[str, float]]:
-    """The fit minus the calibration per ``AGREEMENT_COMPONENTS``, and the fit's 1-sigma of
-    each from its (7, 7) covariance (rotation vector as a left perturbation in the world,
-    translation, clock)."""
-    boresight = calibration.rotation[:2, 0]
-    norm = float(np.linalg.norm(boresight))
-    along = boresight / norm if norm > 1e-9 else np.array([1.0, 0.0])
-    across = np.array([-along[1], along[0]])
-    axes = {'along_m': np.r_[along, 0.0], 'across_m': np.r_[across, 0.0],
-            'vertical_m': np.array([0.0, 0.0, 1.0])}
-    turn = Rotation.from_matrix(fit.rotation @ calibration.rotation.T).as_rotvec()
-    shift = fit.translation_m - calibration.translation_m
-    cov = np.asarray(covariance, np.float64)
-    differences: dict[str, float] = {}
-    sigmas: dict[str, float] = {}
-    for (name, axis), rot_name in zip(axes.items(), ('roll_deg', 'pitch_deg', 'yaw_deg')):
-        differences[name] = float(axis @ shift)
-        sigmas[name] = math.sqrt(max(float(axis @ cov[3:6, 3:6] @ axis), 0.0))
-        differences[rot_name] = math.degrees(float(axis @ turn))
-        sigmas[rot_name] = math.degrees(math.sqrt(max(float(axis @ cov[:3, :3] @ axis), 0.0)))
-    return ({k: differences[k] for k in AGREEMENT_COMPONENTS},
-            {k: sigmas[k] for k in AGREEMENT_COMPONENTS})
+def _differences_in_calibration_axes(calibration: Extrinsics, fit: Extrinsics
+                                     ) -> dict[str, float]:
+    """The fit minus the calibration per ``AGREEMENT_COMPONENTS``, in the calibration's
+    axes (``quality.boresight_axes``)."""
+    axes = quality.boresight_axes(calibration.rotation)
+    shift = axes @ (fit.translation_m - calibration.translation_m)
+    turn = np.degrees(axes @ Rotation.from_matrix(
+        fit.rotation @ calibration.rotation.T).as_rotvec())
+    return dict(zip(AGREEMENT_COMPONENTS, (*map(float, shift), *map(float, turn))))
+
+
+def _fit_sigmas(covariance: np.ndarray, calibration: Extrinsics) -> dict[str, float]:
+    """The 1-sigma per ``AGREEMENT_COMPONENTS`` of a (7, 7) covariance (rotation vector as a
+    left perturbation in the world, translation, clock) in the calibration's axes."""
+    s = quality.uncertainty_from_covariance(covariance, calibration.rotation)
+    return dict(zip(AGREEMENT_COMPONENTS, (s['along'], s['across'], s['vertical'],
+                                           s['roll_deg'], s['pitch_deg'], s['yaw_deg'])))
 
 
 def _stated_sigmas(calibration: Mapping[str, Any]) -> dict[str, float]:
@@ -544,9 +545,8 @@ def _stated_sigmas(calibration: Mapping[str, Any]) -> dict[str, float]:
     sigma = (calibration.get('quality') or {}).get('sigma') or {}
 
     def number(key: str) -> float | None:
-        value = sigma.get(key)
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        return float(value) if ok and math.isfinite(value) and value >= 0 else None
+        value = _number(sigma.get(key))
+        return value if value is not None and value >= 0 else None
 
     out: dict[str, float] = {}
     for name, key in (('along_m', 'along_boresight_m'), ('across_m', 'across_boresight_m'),

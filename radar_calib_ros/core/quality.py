@@ -235,28 +235,34 @@ def uncertainty_from_covariance(covariance: F64, rotation: F64) -> dict[str, flo
                 'rotation_deg': nan, 'roll_deg': nan, 'pitch_deg': nan, 'yaw_deg': nan,
                 'time_offset_s': nan}
     rot, trans = covariance[:3, :3], covariance[3:6, 3:6]
-    boresight = np.asarray(rotation, np.float64)[:2, 0]
-    norm = np.linalg.norm(boresight)
-    # a radar looking straight down has no horizontal boresight: take world x by convention
-    along = boresight / norm if norm > 1e-9 else np.array([1.0, 0.0])
-    across = np.array([-along[1], along[0]])
-    horizontal = trans[:2, :2]
+    along, across, up = boresight_axes(rotation)
     time_var = covariance[6, 6] if covariance.shape[0] > 6 else float('nan')
 
-    def about(axis: F64) -> float:
-        return math.degrees(math.sqrt(max(float(axis @ rot @ axis), 0.0)))
+    def spread(block: F64, axis: F64) -> float:
+        return math.sqrt(max(float(axis @ block @ axis), 0.0))
 
     return {
         'translation': math.sqrt(max(float(np.trace(trans)), 0.0)),
-        'along': math.sqrt(max(float(along @ horizontal @ along), 0.0)),
-        'across': math.sqrt(max(float(across @ horizontal @ across), 0.0)),
-        'vertical': math.sqrt(max(float(trans[2, 2]), 0.0)),
+        'along': spread(trans, along),
+        'across': spread(trans, across),
+        'vertical': spread(trans, up),
         'rotation_deg': math.degrees(math.sqrt(max(float(np.trace(rot)), 0.0))),
-        'roll_deg': about(np.array([along[0], along[1], 0.0])),
-        'pitch_deg': about(np.array([across[0], across[1], 0.0])),
-        'yaw_deg': about(np.array([0.0, 0.0, 1.0])),
+        'roll_deg': math.degrees(spread(rot, along)),
+        'pitch_deg': math.degrees(spread(rot, across)),
+        'yaw_deg': math.degrees(spread(rot, up)),
         'time_offset_s': math.sqrt(max(float(time_var), 0.0)),
     }
+
+
+def boresight_axes(rotation: F64) -> F64:
+    """(3, 3) rows: the horizontal direction of the radar's boresight (its x axis in the
+    world), the horizontal direction left of it, and the vertical; world x and y for a
+    radar looking straight down, which has no horizontal boresight."""
+    boresight = np.asarray(rotation, np.float64)[:2, 0]
+    norm = np.linalg.norm(boresight)
+    along = boresight / norm if norm > 1e-9 else np.array([1.0, 0.0])
+    return np.array([[along[0], along[1], 0.0], [-along[1], along[0], 0.0],
+                     [0.0, 0.0, 1.0]])
 
 
 def bootstrap_covariance(extrinsics: Extrinsics, targets: polygon.VehicleTargets,

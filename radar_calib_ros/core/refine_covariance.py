@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import hypotheses, uncertainty
-from radar_calib_ros.core.refine_model import (_START_SIGMA_M, _change, _Model, _Poses,
+from radar_calib_ros.core.refine_model import (_START_SIGMA_M, _Model, _Poses,
                                                _Selected)
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording
@@ -102,14 +102,14 @@ def _check_not_diverged(start: Extrinsics, est: Extrinsics, planar: bool = False
     position), never the tilt alone. Returns (tilt [deg], vertical shift [m]) of such a
     run beyond ``_PLANE_TILT_DEG`` or ``_PLANE_HEIGHT_M``, else None.
     """
-    angle, shift, _ = _change(start, est.rotation, est.translation_m, est.time_offset_s)
-    horizontal = float(np.hypot(*(est.translation_m[:2] - start.translation_m[:2])))
-    if planar:
-        shift = horizontal
     turn = Rotation.from_matrix(est.rotation @ start.rotation.T).as_rotvec()
+    angle = float(np.linalg.norm(turn))
+    moved = est.translation_m - start.translation_m
+    horizontal = float(np.hypot(moved[0], moved[1]))
+    shift = horizontal if planar else float(np.linalg.norm(moved))
     yaw_deg = abs(math.degrees(float(turn[2])))
     tilt_deg = math.degrees(float(np.hypot(turn[0], turn[1])))
-    vertical = abs(float(est.translation_m[2] - start.translation_m[2]))
+    vertical = abs(float(moved[2]))
     within = shift <= _MAX_SHIFT_M and math.degrees(angle) <= _MAX_TURN_DEG
     plane_only = (not planar and horizontal <= _MAX_SHIFT_M and yaw_deg <= _MAX_TURN_DEG
                   and tilt_deg <= _MAX_PLANE_TILT_DEG and vertical <= _MAX_PLANE_HEIGHT_M)
@@ -120,7 +120,7 @@ def _check_not_diverged(start: Extrinsics, est: Extrinsics, planar: bool = False
             'off): it follows something other than the vehicle, most likely radial '
             f'velocities off its motion ({_VELOCITY_SUSPECTS})', shift, math.degrees(angle))
     if tilt_deg > _PLANE_TILT_DEG or vertical > _PLANE_HEIGHT_M:
-        return tilt_deg, float(est.translation_m[2] - start.translation_m[2])
+        return tilt_deg, float(moved[2])
     return None
 
 
