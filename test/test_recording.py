@@ -334,6 +334,64 @@ def test_navsatfix_only_course_over_ground() -> None:
     assert np.linalg.norm(vehicle.velocities_mps[standing, :2], axis=1).max() < 0.5
 
 
+def test_navsatfix_only_velocity_is_a_local_quadratic_slope() -> None:
+    """With fixes alone the vehicle's velocity is what every radial velocity is compared
+    with: exact under acceleration (also where the window is one-sided, at the ends and
+    around a gap between passes) and, from 2 cm RTK noise at 10 Hz, within a few cm/s (the
+    +-0.2 s central difference gave 0.07-0.14 m/s, which shifted a forty-second probe's
+    clock offset by tens of milliseconds)."""
+    frame = LocalFrame.at(LAT0, LON0)
+    t = np.concatenate([np.arange(0.0, 20.0, 0.1), np.arange(25.0, 45.0, 0.1)])
+    # 10 m/s with a ripple of +-1 m/s, eastwards
+    distance = 10.0 * t - 3.0 * np.cos(t / 3.0)
+    speed = 10.0 + np.sin(t / 3.0)
+
+    def velocities(noise_m: float) -> np.ndarray:
+        rng = np.random.default_rng(3)
+        local = np.column_stack([distance + rng.normal(0, noise_m, t.size),
+                                 rng.normal(0, noise_m, t.size), np.zeros(t.size)])
+        lat, lon, alt = frame.local_to_geodetic(local)
+        builder = RecordingBuilder(CalibConfig())
+        _one_frame(builder)
+        for i in range(t.size):
+            # stamps rounded to the nanosecond, as a driver writes them
+            builder.add_fix(FixSample(T0 + int(round(t[i] * 1e9)), lat[i], lon[i], alt[i], 2))
+        return builder.build().vehicle.velocities_mps
+
+    exact = velocities(0.0)
+    assert np.abs(exact[:, 0] - speed).max() < 0.005
+    assert np.abs(exact[:, 1]).max() < 1e-4
+    noisy = velocities(0.02)
+    error = noisy[:, :2] - np.column_stack([speed, np.zeros(t.size)])
+    interior = ((t > 0.5) & (t < 19.5)) | ((t > 25.5) & (t < 44.5))
+    assert np.std(error[interior]) < 0.035
+    assert np.abs(np.mean(error[interior, 0])) < 0.01
+    # the span follows the fixes' white noise (a turn or an acceleration does not count):
+    # about the old +-0.2 s at 8 mm, about +-0.4 s at 2 cm, and never beyond 0.5 s
+    from radar_calib_ros.vehicle_track import _fix_velocity_half_span
+    rng = np.random.default_rng(4)
+    circle = 8.0 * np.column_stack([np.cos(0.6 * t), np.sin(0.6 * t), np.zeros(t.size)])
+    spans = [_fix_velocity_half_span(t, circle + rng.normal(0, sigma, circle.shape))
+             for sigma in (0.0, 0.008, 0.02, 0.2)]
+    assert spans[0] == 0.2 and spans[1] < 0.25
+    assert 0.35 < spans[2] < 0.45
+    assert spans[3] == 0.5
+
+
+def test_difference_windows_hold_stamps_rounded_to_the_nanosecond() -> None:
+    """A 10 Hz fix 0.2 s away, its stamp rounded to the nanosecond, is inside +-0.2 s: the
+    window once fell to +-0.1 s for most samples."""
+    from radar_calib_ros.vehicle_track import _window
+    stamps = T0 + np.round(np.arange(0.0, 60.0, 0.1) * 1e9).astype(np.int64)
+    t = (stamps - stamps[0]) * 1e-9
+    lo, hi = _window(t, 0.2)
+    index = np.arange(t.size)
+    interior = (index >= 2) & (index < t.size - 2)
+    assert np.all(index[interior] - lo[interior] == 2)
+    assert np.all(hi[interior] - index[interior] == 2)
+    assert lo[0] == 0 and hi[0] == 2 and hi[-1] == t.size - 1
+
+
 def test_invalid_fixes_and_odometry_dropped_and_counted() -> None:
     builder = RecordingBuilder(CalibConfig())
     _one_frame(builder)
