@@ -248,7 +248,7 @@ def merge_intervals_ns(intervals_ns: I64, gap_s: float,
         Pose stamps at which the vehicle was out of the radar's reach
         (:func:`away_stamps_ns`).
     vehicle : VehicleTrack, optional
-        Its heading between two intervals: turned by more than ``_TURNED_AROUND_RAD``, they
+        Its heading between two intervals: turned by more than ``TURNED_AROUND_RAD``, they
         are two passes.
     """
     intervals_ns = np.asarray(intervals_ns, np.int64).reshape(-1, 2)
@@ -270,7 +270,7 @@ def merge_intervals_ns(intervals_ns: I64, gap_s: float,
             turned = np.abs(
                 np.interp((starts[1:] - vehicle.stamps_ns[0]).astype(np.float64), t, yaw)
                 - np.interp((reach[:-1] - vehicle.stamps_ns[0]).astype(np.float64), t, yaw))
-            apart |= turned > _TURNED_AROUND_RAD
+            apart |= turned > TURNED_AROUND_RAD
         new_pass[1:] &= apart
     group = np.cumsum(new_pass) - 1
     merged_end = np.full(group[-1] + 1, np.iinfo(np.int64).min, np.int64)
@@ -280,7 +280,7 @@ def merge_intervals_ns(intervals_ns: I64, gap_s: float,
 
 #: Heading change between two intervals of the vehicle that makes them two passes: a
 #: U-turn (or a loop round a block), not the 90 deg of a turn at the junction.
-_TURNED_AROUND_RAD = np.radians(135.0)
+TURNED_AROUND_RAD = np.radians(135.0)
 
 
 def away_stamps_ns(vehicle: VehicleTrack, sensor_xy_m: F64, reach_m: float) -> I64:

@@ -421,7 +421,7 @@ def drive_advice(sigma_along_m: float, threshold_m: float, coverage: ViewCoverag
     besides = (f', besides the {fixes_sigma_m:.1f} m of the vehicle\'s fixes'
                if fixes_sigma_m > threshold_m else '')
     sentences = [
-        f'The position along the boresight is uncertain by {100 * sigma_along_m:.0f} cm '
+        f'The position along the boresight is uncertain by {_centimetres(sigma_along_m)} cm '
         f'(1 sigma, more than {100 * threshold_m:.0f} cm{besides}): each side of the vehicle '
         f'({_join(sides) or "none"}) was seen from bearings spread by only about '
         f'{median_spread:.0f} deg, so the depth of its reflections trades off against the '
@@ -517,6 +517,11 @@ def _span(values: F64) -> str:
     """'20' or '15-25': the range of ``values``, rounded to metres."""
     lo, hi = round(float(values.min())), round(float(values.max()))
     return f'{lo}' if lo == hi else f'{lo}-{hi}'
+
+
+def _centimetres(metres: float) -> str:
+    """Centimetres to a tenth below ten (5.4 cm is not '5 cm, more than 5 cm')."""
+    return f'{100 * metres:.1f}' if metres < 0.1 else f'{100 * metres:.0f}'
 
 
 def _join(names: list[str]) -> str:
