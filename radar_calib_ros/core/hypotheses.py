@@ -265,12 +265,7 @@ def merge_intervals_ns(intervals_ns: I64, gap_s: float,
         right = np.searchsorted(away, starts[1:], side='left')
         apart = right > left
         if vehicle is not None and len(vehicle) >= 2:
-            t = (vehicle.stamps_ns - vehicle.stamps_ns[0]).astype(np.float64)
-            yaw = np.unwrap(vehicle.yaw_rad)
-            turned = np.abs(
-                np.interp((starts[1:] - vehicle.stamps_ns[0]).astype(np.float64), t, yaw)
-                - np.interp((reach[:-1] - vehicle.stamps_ns[0]).astype(np.float64), t, yaw))
-            apart |= turned > TURNED_AROUND_RAD
+            apart |= heading_change_rad(vehicle, reach[:-1], starts[1:]) > TURNED_AROUND_RAD
         new_pass[1:] &= apart
     group = np.cumsum(new_pass) - 1
     merged_end = np.full(group[-1] + 1, np.iinfo(np.int64).min, np.int64)
@@ -281,6 +276,26 @@ def merge_intervals_ns(intervals_ns: I64, gap_s: float,
 #: Heading change between two intervals of the vehicle that makes them two passes: a
 #: U-turn (or a loop round a block), not the 90 deg of a turn at the junction.
 TURNED_AROUND_RAD = np.radians(135.0)
+
+
+def heading_change_rad(vehicle: VehicleTrack, from_ns: I64, to_ns: I64) -> F64:
+    """(n,) how far the vehicle's heading turned from each ``from_ns`` to ``to_ns``
+    (pose-clock stamps) [rad], through +-pi and over several turns."""
+    t = (vehicle.stamps_ns - vehicle.stamps_ns[0]).astype(np.float64)
+    yaw = np.unwrap(vehicle.yaw_rad)
+    turned: F64 = np.abs(
+        np.interp((np.asarray(to_ns, np.int64) - vehicle.stamps_ns[0]).astype(np.float64),
+                  t, yaw)
+        - np.interp((np.asarray(from_ns, np.int64) - vehicle.stamps_ns[0]).astype(np.float64),
+                    t, yaw))
+    return turned
+
+
+def travelled_m(vehicle: VehicleTrack) -> F64:
+    """(p,) horizontal distance the vehicle has driven up to each pose [m]."""
+    travelled: F64 = np.concatenate([[0.0], np.cumsum(np.hypot(
+        *np.diff(vehicle.positions_m[:, :2], axis=0).T))])
+    return travelled
 
 
 def away_stamps_ns(vehicle: VehicleTrack, sensor_xy_m: F64, reach_m: float) -> I64:
@@ -778,8 +793,7 @@ def passes_in_view_ns(vehicle: VehicleTrack, in_view: np.ndarray, sensor_xy_m: F
     cfg = config.hypotheses
     edges = np.diff(np.concatenate([[0], in_view.astype(np.int8), [0]]))
     first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
-    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(
-        *np.diff(vehicle.positions_m[:, :2], axis=0).T))])
+    travelled = travelled_m(vehicle)
     long_enough = travelled[last] - travelled[first] >= cfg.min_track_length_m
     stretches = np.column_stack([vehicle.stamps_ns[first[long_enough]],
                                  vehicle.stamps_ns[last[long_enough]]])

@@ -442,14 +442,14 @@ def _drive_passes(times: _Times, vehicle: VehicleTrack, config: CalibConfig) -> 
     if n_runs < 2 or len(vehicle) < 2:
         return runs
     t_pose = (vehicle.stamps_ns - vehicle.stamps_ns[0]) * 1e-9
-    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(
-        *np.diff(vehicle.positions_m[:, :2], axis=0).T))])
-    heading = np.unwrap(vehicle.yaw_rad)
+    travelled = hypotheses.travelled_m(vehicle)
     labels = np.arange(n_runs)
     ends = np.asarray(ndimage.maximum(times.t_s, runs, labels), float)[:-1]
     starts = np.asarray(ndimage.minimum(times.t_s, runs, labels), float)[1:]
     moved = np.interp(starts, t_pose, travelled) - np.interp(ends, t_pose, travelled)
-    turned = np.abs(np.interp(starts, t_pose, heading) - np.interp(ends, t_pose, heading))
+    turned = hypotheses.heading_change_rad(
+        vehicle, vehicle.stamps_ns[0] + np.round(ends * 1e9).astype(np.int64),
+        vehicle.stamps_ns[0] + np.round(starts * 1e9).astype(np.int64))
     new_drive = (moved >= _STOP_TRAVEL_M) | (turned > hypotheses.TURNED_AROUND_RAD)
     drive_of_run = np.concatenate([[0], np.cumsum(new_drive)])
     return drive_of_run[runs].astype(np.int64)
