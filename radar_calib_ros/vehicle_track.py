@@ -250,6 +250,9 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
         velocities = _fix_velocities(t, positions)
         yaw, yaw_rate = _course_over_ground(t, velocities, min_heading_speed,
                                             counters, positions)
+        # the rate is then the course differentiated: the final fit's covariance allows for
+        # its error (``core/refine.py``, ``_FIX_YAW_RATE_SIGMA``)
+        counters['yaw_rate_from_fixes'] = 1
     # Positions from the Odometry alone (vehicle.odom_is_utm) come from the same GNSS
     # behind an INS: an RTK fix lost for float and regained moves them as it moves fixes
     # (a fifteenth probe: 0.30-0.87 m off against 0.01-0.09 m with the same jumps in

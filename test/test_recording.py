@@ -108,6 +108,7 @@ def test_fixes_stamped_late_against_the_odometry_are_put_back_in_time(
     rec = builder.build()
     notes = ' '.join(_data_notes(rec, []))
     assert 'fix_lever_arm_forward_cm' not in rec.counters and 'lever arm' not in notes
+    assert 'yaw_rate_from_fixes' not in rec.counters   # the Odometry's rate is a gyro's
     if lag_ms == 0:
         assert 'fix_lag_ms' not in rec.counters and 'lag the Odometry' not in notes
         return
@@ -326,10 +327,13 @@ def test_navsatfix_only_course_over_ground() -> None:
     _one_frame(builder)
     for i in range(t.size):
         builder.add_fix(FixSample(T0 + int(round(t[i] * 1e9)), lat[i], lon[i], alt[i], 2))
-    vehicle = builder.build().vehicle
+    recording = builder.build()
+    vehicle = recording.vehicle
     inner = (t > 0.5) & (t < 29.5)
     error = np.degrees(np.abs(_wrap(vehicle.yaw_rad - truth)))[inner]
     assert error.max() < 1.5
+    # the yaw rate is the course differentiated: the final fit allows for its error
+    assert recording.counters.get('yaw_rate_from_fixes') == 1
     standing = (t > 10.5) & (t < 19.5)
     assert np.linalg.norm(vehicle.velocities_mps[standing, :2], axis=1).max() < 0.5
 

@@ -92,8 +92,8 @@ from radar_calib_ros.core.refine_clock import (_clock_drift, _clock_step, _mid_r
 from radar_calib_ros.core.refine_covariance import (
     _VELOCITY_SUSPECTS, _check_not_diverged, _Diverged, _halves_disagreement, _halves_shift,
     _height_difference_shift, _height_shift, _lane_separation, _line_axis, _pose_block,
-    _position_spread, _range_bands, _start_term, _turn_between_passes, _yaw_step_between_passes,
-    along_boresight_share, start_error_m)
+    _position_spread, _range_bands, _start_term, _turn_between_passes, _yaw_rate_shift,
+    _yaw_step_between_passes, along_boresight_share, start_error_m)
 from radar_calib_ros.core.refine_diagnostics import _diagnostics
 from radar_calib_ros.core.refine_model import (
     _START_SIGMA_M, ClockDrift, _anchor, _change, _Fit, _Model, _parameter_sigma, _priors,
@@ -120,6 +120,12 @@ _LOG = logging.getLogger(__name__)
 #: radial velocities' line of sight, which the reflection heights and the held tilt blur
 #: (a fifth probe's 2-D radars: 23-39 cm below the truth, with 17 cm from the heights).
 _PLANAR_TILT_SIGMA_DEG = 5.0
+
+#: Relative 1-sigma of a yaw rate from fixes alone (the course over ground differentiated):
+#: on our simulator it read turns 20 % low and on an independent probe's 7 % low, with 0.04-
+#: 0.09 rad/s of noise besides; what the fit makes of it is an effective few per cent (the
+#: errors above over the linearised shift of ``_yaw_rate_shift``: 3-6 %).
+_FIX_YAW_RATE_SIGMA = 0.05
 _PLANAR_HEIGHT_SIGMA_M = 0.3
 #: Prior sigma that holds a 2-D radar's roll and pitch at the start [rad].
 _PLANAR_HOLD_RAD = 1e-5
@@ -759,6 +765,21 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     # deg at a reported 0.24 (all 11 such drives outside 2 sigma). A consider term of
     # ``refine.model_sigma_height_range_m`` per unit of relative range says so: about 2
     # deg of tilt per metre, i.e. 0.3-0.4 deg at 0.2 m.
+    if recording.counters.get('yaw_rate_from_fixes'):
+        # With fixes alone the yaw rate is the course over ground differentiated, and the
+        # fit leans on it (``_yaw_rate_shift``): a forty-fourth probe's NavSatFix-only
+        # drives sat 7-13 cm further back along the boresight than the same drives with
+        # their Odometry's gyro rate (one at 2.4 sigma), and our bench's drives read
+        # without their Odometry were up to 44 cm off (far_from_meridian, reported at 18).
+        # The linearised move per unit of relative rate error was 0.8-7.5 m over those
+        # drives (a refit with the rate 5 % high agrees with it); scaled by
+        # ``_FIX_YAW_RATE_SIGMA`` every one of them lies within 1.1 sigma. With Odometry
+        # the result is unchanged.
+        rate_shift = _yaw_rate_shift(model, x_hat, j, w, jp)
+        _LOG.debug('a yaw rate 1 %% off moves the radar by %s m',
+                   np.round(0.01 * rate_shift[3:6], 3))
+        cov7 += _pose_block(np.outer(rate_shift, rate_shift), estimate_tau) * (
+            _FIX_YAW_RATE_SIGMA ** 2)
     rho = model.geometry(x_hat, jacobian=False)['rho']
     range_shift = _height_shift(model, x_hat, j, w, jp, rho)
     cov7 += _pose_block(np.outer(range_shift, range_shift), estimate_tau) * (

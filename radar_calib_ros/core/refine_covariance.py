@@ -382,6 +382,29 @@ def _height_shift(model: _Model, x: F64, jacobian: F64, sqrt_w: F64, j_prior: F6
     return shift
 
 
+def _yaw_rate_shift(model: _Model, x: F64, jacobian: F64, sqrt_w: F64, j_prior: F64) -> F64:
+    """Linearised change of the fitted parameters per unit relative error of the vehicle's
+    yaw rate (a consider term, as ``_height_difference_shift``).
+
+    The radial velocity of a target ahead of or behind the reference point carries the
+    rate times its lever arm across the line of sight, and the lever arm holds the radar's
+    position: that is what pins the position on many drives, so the fit leans on the rate
+    as given. From an INS it is a gyro's; from fixes alone it is differentiated twice, and
+    its errors (a few per cent in turns, noise on straights, which the fit reads as a
+    shorter lever) move the radar along the line of sight.
+    """
+    g = model.geometry(x, jacobian=False)
+    d = model.data
+    lever, rate = g['rel'], g['rate']
+    point = rate[:, None] * np.column_stack([-lever[:, 1], lever[:, 0], np.zeros(rate.size)])
+    dv = np.einsum('ij,ij->i', point, g['unit_v'])
+    dr = np.concatenate([np.zeros(3 * d.index.size), dv / d.sigma_v * d.sqrt_weight]) * sqrt_w
+    jw = jacobian * sqrt_w[:, None]
+    h = jw.T @ jw + j_prior.T @ j_prior
+    shift: F64 = -np.linalg.solve(h, jw.T @ dr)
+    return shift
+
+
 #: How far the paper's stages may leave the radar along a direction the final fit's data do
 #: not measure, in vehicle lengths, where the vehicle is seen heading along the boresight
 #: (see ``_start_term``) ...

@@ -739,6 +739,37 @@ def test_a_front_rear_height_difference_enters_the_reported_tilt() -> None:
     assert actual @ predicted / (np.linalg.norm(actual) * np.linalg.norm(predicted)) > 0.9
 
 
+def test_a_yaw_rate_from_fixes_alone_widens_the_position_by_what_its_error_moves() -> None:
+    """The radial velocities carry the yaw rate times each target's lever arm, which holds
+    the radar's position: a rate a few per cent off moves the radar. The consider term
+    predicts that move (checked against a refit with the rate 5 % high) and, where the rate
+    comes from fixes alone, widens the reported translation without moving the estimate."""
+    scene = make_scene(5, model='interior', geometry='junction')
+    rec = scene.recording
+    from_fixes = dataclasses.replace(rec, counters={**rec.counters, 'yaw_rate_from_fixes': 1})
+    shifts = []
+    real = refine._yaw_rate_shift
+    with pytest.MonkeyPatch.context() as mp:
+        # patched where the stage looks it up (refine imports it from refine_covariance)
+        mp.setattr(refine, '_yaw_rate_shift', lambda *a: shifts.append(real(*a)) or shifts[-1])
+        fixes = refine.refine_extrinsics(scene.initial, from_fixes, scene.tracked,
+                                         scene.selection, scene.config)
+    gyro = _run(scene)
+    assert shifts and len(shifts) >= 1
+    np.testing.assert_allclose(fixes.extrinsics.translation_m, gyro.extrinsics.translation_m)
+    widened = np.trace(fixes.covariance[3:6, 3:6]) - np.trace(gyro.covariance[3:6, 3:6])
+    predicted = 0.05 * shifts[-1][3:6]
+    assert widened == pytest.approx(
+        (refine._FIX_YAW_RATE_SIGMA / 0.05) ** 2 * predicted @ predicted, rel=0.05)
+    faster = dataclasses.replace(rec.vehicle, yaw_rate_rps=rec.vehicle.yaw_rate_rps * 1.05)
+    moved = refine.refine_extrinsics(scene.initial, dataclasses.replace(rec, vehicle=faster),
+                                     scene.tracked, scene.selection, scene.config)
+    actual = moved.extrinsics.translation_m - gyro.extrinsics.translation_m
+    assert np.linalg.norm(actual) > 0.05
+    assert actual @ predicted / (np.linalg.norm(actual) * np.linalg.norm(predicted)) > 0.95
+    assert 0.5 < np.linalg.norm(predicted) / np.linalg.norm(actual) < 2.0
+
+
 def test_frames_with_the_vehicle_cut_by_the_edge_of_the_view_are_left_out() -> None:
     """The view comes from the data (99th percentile of range, 1st-99th of azimuth); a
     vehicle whose footprint crosses its edge shows only its inner part and is left out."""
