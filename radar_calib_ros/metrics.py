@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.core import hypotheses
 from radar_calib_ros.core import vehicle as vehicle_box
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.types import F64, I64, Extrinsics, TrackedTargets, VehicleTrack, _freeze
@@ -231,8 +232,8 @@ def pass_yaw_offsets(recording: Recording, target_index: I64, extrinsics: Extrin
     only in part and bias them towards it); the weight counts frames, not targets (a
     frame's targets share the vehicle's velocity and the clock).
 
-    Returns (G,) yaws, (G,) weights and (G, 2) stamps, passes split at gaps of
-    ``hypotheses.pass_gap_s``; passes with fewer than 3 usable frames are left out.
+    Returns (G,) yaws, (G,) weights and (G, 2) stamps of the passes
+    (``hypotheses.drive_passes``); passes with fewer than 3 usable frames are left out.
     """
     target_index = np.asarray(target_index, np.int64)
     stamps = recording.stamps_of(target_index)
@@ -253,14 +254,14 @@ def pass_yaw_offsets(recording: Recording, target_index: I64, extrinsics: Extrin
     residual = (recording.targets.radial_velocity_mps[target_index]
                 - np.sum(velocity * rays, axis=1))
     slope = velocity[:, 1] * rays[:, 0] - velocity[:, 0] * rays[:, 1]   # v . (z x ray)
-    gap_ns = np.int64(round(config.hypotheses.pass_gap_s * 1e9))
-    pass_id = np.concatenate([[0], np.cumsum(np.diff(stamps) > gap_ns)]) if stamps.size \
-        else np.zeros(0, np.int64)
+    # one pass per drive through the view, as the calibration's (a stop in view is none)
+    t_s = (stamps + np.int64(round(offset_s * 1e9)) - recording.vehicle.stamps_ns[0]) * 1e-9
+    pass_id = hypotheses.drive_passes(t_s, recording.vehicle, config.hypotheses.pass_gap_s)
     frames = recording.targets.frame_index[target_index]
     usable = (poses.valid & (np.abs(residual) <= _PASS_YAW_GATE_MPS)
               & (np.abs(poses.yaw_rate_rps) <= _PASS_YAW_MAX_YAW_RATE_RPS))
     yaws, weights, spans = [], [], []
-    for p in range(int(pass_id[-1]) + 1 if pass_id.size else 0):
+    for p in range(int(pass_id.max()) + 1 if pass_id.size else 0):
         in_pass = usable & (pass_id == p)
         fitted = _robust_yaw(slope[in_pass], residual[in_pass])
         if fitted is None:

@@ -29,8 +29,7 @@ from radar_calib_ros.core.refine_model import (_Poses, _Selected, _Times,
 from radar_calib_ros.core.vehicle import (box_corners_world, box_distance, box_limits,
                                           world_to_vehicle)
 from radar_calib_ros.recording import Recording
-from radar_calib_ros.types import (F64, I64, Extrinsics, RadarView, TrackedTargets,
-                                   VehicleTrack)
+from radar_calib_ros.types import F64, I64, Extrinsics, RadarView, TrackedTargets
 
 
 #: The largest sine of the dip of a 2-D radar's line of sight out of its plane (a target
@@ -404,55 +403,8 @@ def _in_passes(t_s: F64, gap_s: float) -> np.ndarray:
     """(n,) False for targets in runs of fewer than ``_MIN_PASS_TARGETS``: a few targets
     near the box for an instant are another road user or clutter, not a pass (they would
     also count as passes in the jackknife and shrink its t-factor)."""
-    ids = _passes(t_s, gap_s)
+    ids = hypotheses.target_runs(t_s, gap_s)
     return np.bincount(ids)[ids] >= _MIN_PASS_TARGETS
-
-
-def _passes(times: F64, gap_s: float) -> I64:
-    """Pass id per target (0..G-1): runs of targets without a gap longer than gap_s."""
-    order = np.argsort(times, kind='stable')
-    breaks = np.concatenate([[0], (np.diff(times[order]) > gap_s).astype(np.int64)])
-    ids = np.empty(times.size, np.int64)
-    ids[order] = np.cumsum(breaks)
-    return ids
-
-
-#: Least travel [m] of the vehicle between two runs of its targets that makes them two
-#: passes (``_drive_passes``): a car stopping for a light and pulling away again moves a
-#: few metres without targets, a drive round the block or back from out of view hundreds.
-_STOP_TRAVEL_M = 10.0
-
-
-def _drive_passes(times: _Times, vehicle: VehicleTrack, config: CalibConfig) -> I64:
-    """Pass id per target (0..G-1): the runs of ``_passes``, merged where the vehicle
-    travelled less than ``_STOP_TRAVEL_M`` between them and did not turn around
-    (``hypotheses.TURNED_AROUND_RAD``).
-
-    Why: a car standing at a light has no moving targets, so its drive falls into runs
-    before and after the stop. Counted as passes they are not independent (one drive, one
-    lane, the same reflections), so the jackknife over them was too narrow and the check
-    of the first against the second half of the passes compared one drive with itself:
-    `evaluate` counted 14-15 passes for 8 drives with stops, and two drives with a stop
-    each 'did not hold' (halves 2.5 deg apart) while every axis agreed within 1 sigma (a
-    forty-fourth probe). Travel rather than time or reach: a gap while the vehicle drives
-    on (hidden behind a truck, or its fixes dropped) is as before, and so is a recording
-    whose poses jump from one drive to the next."""
-    runs = _passes(times.t_s, config.hypotheses.pass_gap_s)
-    n_runs = int(runs.max()) + 1 if runs.size else 0
-    if n_runs < 2 or len(vehicle) < 2:
-        return runs
-    t_pose = (vehicle.stamps_ns - vehicle.stamps_ns[0]) * 1e-9
-    travelled = hypotheses.travelled_m(vehicle)
-    labels = np.arange(n_runs)
-    ends = np.asarray(ndimage.maximum(times.t_s, runs, labels), float)[:-1]
-    starts = np.asarray(ndimage.minimum(times.t_s, runs, labels), float)[1:]
-    moved = np.interp(starts, t_pose, travelled) - np.interp(ends, t_pose, travelled)
-    turned = hypotheses.heading_change_rad(
-        vehicle, vehicle.stamps_ns[0] + np.round(ends * 1e9).astype(np.int64),
-        vehicle.stamps_ns[0] + np.round(starts * 1e9).astype(np.int64))
-    new_drive = (moved >= _STOP_TRAVEL_M) | (turned > hypotheses.TURNED_AROUND_RAD)
-    drive_of_run = np.concatenate([[0], np.cumsum(new_drive)])
-    return drive_of_run[runs].astype(np.int64)
 
 
 def _whitening(sensor: F64, rotation: F64, yaw: F64, scatter_sigma: F64,
@@ -582,7 +534,8 @@ def _select(index: I64, times: _Times, est: Extrinsics, recording: Recording, po
     aspect = reflection.aspect_angles(centre, yaw)
     frame_index = recording.targets.frame_index[index]
     weight = _information_weights(frame_index, pos, aspect, config)
-    pass_id = _drive_passes(times, recording.vehicle, config)
+    pass_id = hypotheses.drive_passes(times.t_s, recording.vehicle,
+                                      config.hypotheses.pass_gap_s)
     vertical_ok = _inside_elevation_view(pos, yaw, est, fov, config)
     whiten = _whitening(sensor, est.rotation, yaw, scatter, config, vertical_ok)
     # The v_r line of sight takes the target's height from the model; the reflectors'

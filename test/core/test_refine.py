@@ -1850,10 +1850,11 @@ def test_a_stop_in_view_splits_a_run_of_targets_not_a_pass() -> None:
     while it drives on, or in which it turns round, does (a forty-fourth probe's evaluate
     counted 14-15 passes for 8 drives with stops, and judged one drive's halves against
     each other)."""
+    from radar_calib_ros.core.hypotheses import drive_passes, target_runs
     from radar_calib_ros.core.refine_model import _Times
-    from radar_calib_ros.core.refine_targets import _drive_passes, _passes
     from radar_calib_ros.types import VehicleTrack
     cfg = CalibConfig()
+    gap = cfg.hypotheses.pass_gap_s
     t = np.arange(0.0, 60.0, 0.02)
     # 10 m/s eastwards for 20 s, 20 s standing, 20 s on
     east = 10.0 * np.clip(t, 0.0, 20.0) + 10.0 * np.clip(t - 40.0, 0.0, None)
@@ -1867,12 +1868,12 @@ def test_a_stop_in_view_splits_a_run_of_targets_not_a_pass() -> None:
     frame_t = np.arange(0.0, 60.0, 1.0 / 15.0)
     frame_t = frame_t[(frame_t < 19.9) | (frame_t > 40.1)]
     times = _Times(frame_t, np.repeat(np.arange(frame_t.size), 3))
-    assert _passes(times.t_s, cfg.hypotheses.pass_gap_s).max() == 1
+    assert target_runs(times.t_s, gap).max() == 1
     straight = np.zeros(t.size)
-    stop = _drive_passes(times, track(east, straight), cfg)
+    stop = drive_passes(times.t_s, track(east, straight), gap)
     assert stop.max() == 0
     # the same gap while it drives on (hidden, or its fixes dropped): two runs, as before
-    assert _drive_passes(times, track(10.0 * t, straight), cfg).max() == 1
+    assert drive_passes(times.t_s, track(10.0 * t, straight), gap).max() == 1
     # turned round while standing: seen from the other side after it, another pass
     u_turn = np.where(t < 30.0, 0.0, np.pi)
-    assert _drive_passes(times, track(east, u_turn), cfg).max() == 1
+    assert drive_passes(times.t_s, track(east, u_turn), gap).max() == 1
