@@ -473,3 +473,31 @@ def test_a_mount_turned_during_the_recording_does_not_hold(drive: Any) -> None:
     assert int(turn.group(2)) <= (knock_ns - start_s) * 1e-9 <= int(turn.group(3)) + 1
     g = evaluate.check_agreement(ev, config)
     assert g.verdict == 'does not hold' and 'mount turned' in g.reason, g
+
+
+def test_a_check_that_leaves_metres_open_cannot_pass_and_a_fallen_r_i_says_moved() -> None:
+    """Agreement within 2 sigma of metres checks nothing: a forty-fifth probe's highway
+    drives (all head-on and tail-on, 6 m 1-sigma along the boresight) let a radar moved
+    1-3 m 'hold'. Such a check says 'cannot tell', and 'doubtful' where the vehicle's
+    targets fall inside its box far less often than when it was calibrated."""
+    from types import SimpleNamespace
+    tight = {'along_m': 0.12, 'across_m': 0.05, 'vertical_m': 0.4, 'roll_deg': 0.3,
+             'pitch_deg': 0.3, 'yaw_deg': 0.05}
+    assert evaluate._unseen(tight) == ''
+    assert evaluate._unchecked(tight, tight, tight) == ''
+    highway = {**tight, 'along_m': 6.3, 'across_m': 0.6}
+    assert evaluate._unseen(highway) == 'the position along the boresight (630 cm 1-sigma)'
+    # the calibration was as loose: the factor against it misses, the level does not
+    assert 'along the boresight (630 cm' in evaluate._unchecked(highway, highway, highway)
+
+    def judged(r_i_now: float, r_i_then: float | None) -> tuple[str, str]:
+        quality = {} if r_i_then is None else {'inlier_ratio': r_i_then}
+        ev = SimpleNamespace(calibration={'quality': quality},
+                             paper=SimpleNamespace(inlier_ratio=r_i_now))
+        return evaluate._unseen_verdict(ev, evaluate._unseen(highway), 8)  # type: ignore
+
+    assert judged(0.68, 0.67)[0] == 'cannot tell'
+    assert judged(0.40, 0.67)[0] == 'cannot tell'
+    assert judged(0.40, None)[0] == 'cannot tell'
+    verdict, reason = judged(0.05, 0.67)
+    assert verdict == 'doubtful' and '5 % of cases against 67 %' in reason
