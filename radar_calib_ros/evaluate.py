@@ -31,7 +31,8 @@ from scipy.spatial.transform import Rotation
 from radar_calib_ros import metrics
 from radar_calib_ros.core import quality, refine, refine_covariance
 from radar_calib_ros.config import CalibConfig
-from radar_calib_ros.pipeline import VEHICLE_BOX_PARAMETERS, track_targets
+from radar_calib_ros.pipeline import (VEHICLE_BOX_PARAMETERS, fast_vehicle_config,
+                                      track_targets)
 from radar_calib_ros.errors import InsufficientDataError, ResultFileError
 from radar_calib_ros.groundtruth import calibration_errors
 from radar_calib_ros.io.geo import LocalFrame
@@ -705,9 +706,14 @@ def evaluate_recording(recording: Recording, calibration: Mapping[str, Any],
     """Track the recording (stages 1-3) and evaluate the calibration on it
     (:func:`evaluate_tracked`), with the verdict of a fit on it alone
     (:func:`check_agreement`) unless ``agreement`` is false."""
+    fast = fast_vehicle_config(recording, config)
+    if fast is not None:
+        config = fast[0]
     tracked = track_targets(recording, config)
     evaluation = evaluate_tracked(recording, tracked, calibration, config, truth=truth,
                                   range_edges_m=range_edges_m)
+    if fast is not None:
+        evaluation = replace(evaluation, notes=(*evaluation.notes, fast[1]))
     if not agreement:
         return evaluation
     return replace(evaluation, agreement=check_agreement(evaluation, config))

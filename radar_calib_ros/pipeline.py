@@ -1067,12 +1067,12 @@ def run_calibration(recording: Recording, config: CalibConfig, *,
                                                progress)
     except InsufficientDataError as err:
         notes = _clock_notes(recording, config) + _fix_grade_failure_note(recording)
-        fast = _fast_vehicle_config(recording, _scaled_to_vehicle(config))
+        fast = fast_vehicle_config(recording, _scaled_to_vehicle(config))
         if fast is not None:
             # the vehicle's own travel a frame breaks its tracks, whatever else is said
-            notes.append(f'{fast[1].split(" Put them")[0]} At that travel its tracks may '
-                         'still break up: drive slower through the view, or record the radar '
-                         'at a higher frame rate.')
+            notes.append(f'{fast[1]}. At that travel its tracks may still break up: drive '
+                         'slower through the view, or record the radar at a higher frame '
+                         'rate.')
         if 'set sync.time_offset to' in err.reason:
             # the stages found the offset that makes the passes agree: the clock notes would
             # say it twice more (a probe read the 18 s three times in one error)
@@ -1356,17 +1356,18 @@ def _mirrored_axis(recording: Recording, config: CalibConfig) -> str | None:
 
 
 #: The vehicle's travel between two radar frames [m] beyond which the clustering and the
-#: association are fitted to it (``_fast_vehicle_config``), what the association gate
+#: association are fitted to it (``fast_vehicle_config``), what the association gate
 #: allows besides that travel [m], and the frames accumulated for clustering then.
 _FRAME_TRAVEL_M = 1.5
 _GATE_BESIDES_TRAVEL_M = 2.5
 _FAST_ACCUMULATE_FRAMES = 2
 
 
-def _fast_vehicle_config(recording: Recording, config: CalibConfig
-                         ) -> tuple[CalibConfig, str] | None:
+def fast_vehicle_config(recording: Recording, config: CalibConfig
+                        ) -> tuple[CalibConfig, str] | None:
     """``config`` with the clustering and association fitted to a vehicle that moves more
-    than ``_FRAME_TRAVEL_M`` between radar frames, and a note; None where it does not.
+    than ``_FRAME_TRAVEL_M`` between radar frames, and a note saying so (one sentence, no
+    full stop); None where it does not. calibrate and evaluate track with it alike.
 
     Why: the paper's clusters accumulate three frames within ``cluster.eps_m`` (2 m), and
     its tracks join cluster centres within ``associate.gate_m`` (3 m) a frame apart. A car
@@ -1395,8 +1396,7 @@ def _fast_vehicle_config(recording: Recording, config: CalibConfig
         return None
     note = (f'The vehicle drove {travel:.1f} m between radar frames ({fast:.0f} m/s at '
             f'{1.0 / frame_s:.0f} Hz), further than the paper\'s clustering and tracking '
-            f'join: they ran with {_settings_text(settings)}. Put them in the parameters '
-            'file to make them the default for this radar and road.')
+            f'join: they ran with {_settings_text(settings)}')
     return config.replaced(settings), note
 
 
@@ -1407,10 +1407,11 @@ def _run_calibration(recording: Recording, config: CalibConfig,
     if len(targets) == 0:
         raise InsufficientDataError('moving', 'the recording has no radar target')
     _check_pose_stream(recording, config)
-    fast = _fast_vehicle_config(recording, config)
+    fast = fast_vehicle_config(recording, config)
     sparse_note: str | None = None
     if fast is not None:
-        config, sparse_note = fast
+        config, sparse_note = fast[0], (f'{fast[1]}. Put them in the parameters file to '
+                                        'make them the default for this radar and road.')
         _LOG.info('%s', sparse_note)
     tracked = track_targets(recording, config, clock=stage)
     if tracked.target_index.size == 0:

@@ -501,3 +501,23 @@ def test_a_check_that_leaves_metres_open_cannot_pass_and_a_fallen_r_i_says_moved
     assert judged(0.40, None)[0] == 'cannot tell'
     verdict, reason = judged(0.05, 0.67)
     assert verdict == 'doubtful' and '5 % of cases against 67 %' in reason
+
+
+def test_evaluate_tracks_a_fast_vehicle_as_calibrate_does(drive: Any,
+                                                          monkeypatch: pytest.MonkeyPatch
+                                                          ) -> None:
+    """A vehicle moving metres between radar frames breaks the paper's tracks in evaluate
+    as in calibrate: its tracking takes the same fitted settings, and says so."""
+    from radar_calib_ros.io.bag import read_recording
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    seen = []
+    real = evaluate.track_targets
+    monkeypatch.setattr(evaluate, 'fast_vehicle_config', lambda rec, cfg: (
+        cfg.replaced({'associate.gate_m': 5.0}), 'The vehicle drove 2.8 m between frames'))
+    monkeypatch.setattr(evaluate, 'track_targets',
+                        lambda rec, cfg: seen.append(cfg.associate.gate_m) or real(rec, cfg))
+    ev = evaluate.evaluate_recording(recording, _stated(_calibration(summary.truth)), config,
+                                     agreement=False)
+    assert seen == [5.0]
+    assert ev.notes[-1] == 'The vehicle drove 2.8 m between frames'

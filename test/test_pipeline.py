@@ -1030,15 +1030,15 @@ def test_a_vehicle_that_moves_metres_between_frames_gets_a_wider_gate() -> None:
                                vehicle=SimpleNamespace(velocities_mps=velocities))
 
     config = CalibConfig()
-    assert pipeline._fast_vehicle_config(drive(14.0, 15.0), config) is None
-    assert pipeline._fast_vehicle_config(drive(14.0, 10.0), config) is None
-    fitted, note = pipeline._fast_vehicle_config(drive(22.0, 10.0), config)
+    assert pipeline.fast_vehicle_config(drive(14.0, 15.0), config) is None
+    assert pipeline.fast_vehicle_config(drive(14.0, 10.0), config) is None
+    fitted, note = pipeline.fast_vehicle_config(drive(22.0, 10.0), config)
     assert fitted.cluster.accumulate_frames == 2 and fitted.associate.gate_m == 5.0
     assert '2.2 m between radar frames (22 m/s at 10 Hz)' in note
-    fitted, _ = pipeline._fast_vehicle_config(drive(28.0, 10.0), config)
+    fitted, _ = pipeline.fast_vehicle_config(drive(28.0, 10.0), config)
     assert fitted.associate.gate_m == 6.0
     wide = config.replaced({'associate.gate_m': 8.0, 'cluster.accumulate_frames': 1})
-    assert pipeline._fast_vehicle_config(drive(28.0, 10.0), wide) is None
-    fitted, _ = pipeline._fast_vehicle_config(
+    assert pipeline.fast_vehicle_config(drive(28.0, 10.0), wide) is None
+    fitted, _ = pipeline.fast_vehicle_config(
         drive(28.0, 10.0), config.replaced({'associate.gate_m': 8.0}))
     assert fitted.associate.gate_m == 8.0 and fitted.cluster.accumulate_frames == 2
