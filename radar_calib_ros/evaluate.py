@@ -422,8 +422,12 @@ def _checks_rotation(agreement: Agreement) -> bool:
     """A fit whose passes are enough and whose uncertainty is finite: where it cannot
     check the position (``_unseen``), its passes' yaws still show a mount turned during
     the recording."""
-    return agreement.n_passes >= AGREEMENT_MIN_PASSES and all(
-        math.isfinite(v) and v > 0 for v in agreement.sigmas.values())
+    return agreement.n_passes >= AGREEMENT_MIN_PASSES and _has_uncertainty(agreement.sigmas)
+
+
+def _has_uncertainty(sigmas: Mapping[str, float]) -> bool:
+    """Every 1-sigma of the difference finite and above zero."""
+    return all(math.isfinite(v) and v > 0 for v in sigmas.values())
 
 
 def _judged_fit(evaluation: Evaluation, config: CalibConfig, stated: Mapping[str, float]
@@ -460,7 +464,7 @@ def _judged_fit(evaluation: Evaluation, config: CalibConfig, stated: Mapping[str
               for k in differences}
     agreement = Agreement('holds', '', differences, sigmas, int(fit.n_passes),
                           float(fit.extrinsics.time_offset_s - ext.time_offset_s))
-    if not all(math.isfinite(v) and v > 0 for v in sigmas.values()):
+    if not _has_uncertainty(sigmas):
         return replace(agreement, verdict='cannot tell', reason=(
             'the fit on this recording alone has no uncertainty (fewer than two passes '
             'through the view?)')), d, fit.extrinsics
