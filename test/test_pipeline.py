@@ -549,6 +549,9 @@ def test_a_clock_shift_the_final_fit_does_not_confirm_is_not_blamed_on_the_clock
     note = pipeline._shift_note(0.2, -0.0036)
     assert note is not None and '+0.20 s' in note and '-0.004 s' in note
     assert 'vehicle.*' in note
+    # two steps, the fit at the clocks in step: the passes' disagreement came from elsewhere
+    note = pipeline._shift_note(-0.1, -0.004)
+    assert note is not None and '-0.10 s' in note and 'vehicle.*' in note
 
 
 def test_a_sparse_radar_refused_at_stage_6_is_calibrated_with_sparse_settings(
