@@ -214,13 +214,19 @@ def _recording(fix_period_s: float, radar_start_s: float = 0.0, status: int = 2,
 
 
 def test_poses_too_sparse_or_apart_in_time_are_named() -> None:
-    """Fixes at 1 Hz against sync.max_pose_gap 0.5 s, or radar and poses that never
-    overlap: the reason says so (stage 6 would report a vehicle 'never seen')."""
+    """Fixes every 3 s against sync.max_pose_gap 0.5 s, or radar and poses that never
+    overlap: the reason says so (stage 6 would report a vehicle 'never seen'). Fixes alone
+    at 1 Hz get spline samples between them and pass."""
     from radar_calib_ros.pipeline import run_calibration
 
-    with pytest.raises(InsufficientDataError, match=r'poses come every 1.00 s .* more than '
+    with pytest.raises(InsufficientDataError, match=r'poses come every 3.00 s .* more than '
                        r'sync.max_pose_gap 0.5 s'):
-        run_calibration(_recording(1.0), CalibConfig())
+        run_calibration(_recording(3.0), CalibConfig())
+    one_hz = _recording(1.0)
+    assert one_hz.counters['poses_splined_between_fixes'] > 0
+    with pytest.raises(InsufficientDataError) as err:
+        run_calibration(one_hz, CalibConfig())
+    assert 'max_pose_gap' not in str(err.value)
     with pytest.raises(InsufficientDataError, match='do not overlap in time'):
         run_calibration(_recording(0.1, radar_start_s=100.0), CalibConfig())
     # poses fast enough: past this check (and failing later, for want of a vehicle)
