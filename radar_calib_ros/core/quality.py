@@ -129,6 +129,7 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     # through the view (the fit's own groups split a drive at a gap), the same number in
     # the advice and in ``passes`` (a probe read 'passes 3' over 'Only 4 passes')
     used = max(n_passes, len(drives) - len(unused))
+    headings = _used_headings_deg(headings, [d for d in drives if d not in unused], used)
     advice += _advice(used, headings, sigma, paper.inlier_ratio, misfit,
                       refinement is None, config)
     if not_rigid is not None:
@@ -380,6 +381,21 @@ def _pass_headings_deg(targets: polygon.VehicleTargets, pass_intervals_ns: I64) 
     s = np.bincount(idx, np.sin(targets.yaw_rad), n)
     seen = np.bincount(idx, minlength=n) > 0
     return [float(v) for v in (90.0 - np.degrees(np.arctan2(s[seen], c[seen]))) % 360.0]
+
+
+def _used_headings_deg(pass_headings_deg: list[float], used_drives: list[Drive],
+                       n_used: int) -> list[float]:
+    """The headings of the passes the advice and the result speak of [deg, clockwise from
+    north]: stage 6's (``_pass_headings_deg``), or, where the final fit used more drives
+    than stage 6 agreed on, those drives' own.
+
+    Why: a forty-fifth probe's 10 Hz radar on a highway had stage 6 agree on 3 passes,
+    all north-eastbound, and the final fit use all 8, 4 of them south-westbound: 'All 3
+    passes drove in one direction ... drive the opposite direction too' beside 'passes 8'
+    and advice to drive south-westbound again on a lane already driven."""
+    if n_used <= len(pass_headings_deg) or len(used_drives) < n_used:
+        return pass_headings_deg
+    return [float((90.0 - math.degrees(d.heading_rad)) % 360.0) for d in used_drives]
 
 
 def _box_named(misfit_m: float, inlier_ratio: float) -> bool:

@@ -455,3 +455,26 @@ def test_the_view_reaches_as_far_as_the_radar_shows_the_vehicle_not_its_clutter(
     after = quality.drives_through_view(scene.truth, cluttered, new_index, scene.config)
     assert len(before) == len(after) == 5
     assert quality.vehicle_detection_ratio(scene.truth, cluttered, scene.config)[0] >= 0.8 * ratio
+
+
+def test_the_headings_are_those_of_the_drives_the_fit_used_where_it_used_more() -> None:
+    """Stage 6 agreed on 3 passes, all north-eastbound; the final fit used 8 drives, half
+    of them south-westbound (a forty-fifth probe read 'All 3 passes drove in one direction'
+    beside 'passes 8'): the headings, and so the advice, are the 8 drives'."""
+    from radar_calib_ros.core.quality import Drive, _advice, _used_headings_deg
+
+    north_east, south_west = np.radians(90.0 - 55.0), np.radians(90.0 - 235.0)
+    drives = [Drive(30.0 * k, 30.0 * k + 10.0, north_east if k % 2 else south_west, 500, 0.9)
+              for k in range(8)]
+    stage_6 = [55.0, 54.8, 55.2]
+    headings = _used_headings_deg(stage_6, drives, 8)
+    assert sorted(round(h) for h in headings) == [55] * 4 + [235] * 4
+    sigma = {'along': 0.02, 'across': 0.02}
+    config = CalibConfig()
+    assert any('one direction' in a
+               for a in _advice(3, stage_6, sigma, 0.7, 0.2, False, config))
+    assert not any('one direction' in a
+                   for a in _advice(8, headings, sigma, 0.7, 0.2, False, config))
+    # as many drives as stage 6's passes, or fewer known: stage 6's stand
+    assert _used_headings_deg(stage_6, drives[:3], 3) == stage_6
+    assert _used_headings_deg(stage_6, drives[:5], 8) == stage_6
