@@ -182,8 +182,11 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     sel = np.flatnonzero(inside)[first]
     a_edges = np.radians(coverage.aspect_edges_deg)
     seen_aspect = g['aspect']
-    # where each direction was driven: a candidate driven the other way is one already
-    # driven where a pose within a road's width heads that way too (the other carriageway)
+    # where each direction was driven: a lane's other way was driven where a pose within a
+    # road's width heads that way (the other lane or carriageway). There that way's own
+    # poses are the candidates: at this lane's place a forty-fifth probe on a divided
+    # highway was sent the wrong way down the other carriageway ('drive north-eastbound
+    # again on a lane already driven', a lane only south-westbound passes had used).
     driven_key = np.unique(key, axis=0)
     out: list[uncertainty.DriveCandidate] = []
     for flip, driven in ((0.0, True), (np.pi, False)):
@@ -210,15 +213,19 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
         dist = np.abs((p_bear[sel][:, None] - sb[None, :] + np.pi) % (2 * np.pi) - np.pi)
         dist = np.where(same, dist, np.inf).min(axis=1)
         gain = np.where(np.isfinite(dist), np.minimum(dist / np.radians(30.0), 1.0), 0.0)
-        for i in np.argsort(-gain)[:3]:
+        open_lane = np.flatnonzero(~already) if flip else np.arange(sel.size)
+        for i in open_lane[np.argsort(-gain[open_lane])][:3]:
             out.append(uncertainty.DriveCandidate(float(heading[i]), float(p_rng[sel][i]),
                                                   float(p_bear[sel][i]), float(gain[i]),
-                                                  bool(driven or already[i])))
-    out.sort(key=lambda c: -c.gain)
-    # one suggestion per direction of travel
+                                                  driven))
+    # one suggestion per direction of travel, on a lane driven that way where there is one
+    # that adds anything (a way never driven is asked for where its lanes allow, a way
+    # driven is asked for again where it was driven), the best first
+    out.sort(key=lambda c: (not (c.driven and c.gain > 0.0), -c.gain))
     unique: list[uncertainty.DriveCandidate] = []
     for cand in out:
         if all(abs((cand.heading_rad - u.heading_rad + np.pi) % (2 * np.pi) - np.pi) > 0.5
                for u in unique):
             unique.append(cand)
+    unique.sort(key=lambda c: -c.gain)
     return unique

@@ -40,6 +40,10 @@ GEOMETRIES = {
     'head_on': [('line', 130, 3.5, 40, 3.5), ('line', 40, -3.5, 130, -3.5),
                 ('line', 130, 0.5, 40, 0.5), ('line', 40, -0.5, 130, -0.5),
                 ('line', 130, 3.5, 40, 3.5), ('line', 40, -3.5, 130, -3.5)],
+    # a divided road down the view: each direction on its own carriageway, 11 m apart
+    'divided': [('line', 130, 5.5, 40, 5.5), ('line', 40, -5.5, 130, -5.5),
+                ('line', 130, 9.0, 40, 9.0), ('line', 40, -9.0, 130, -9.0),
+                ('line', 130, 5.5, 40, 5.5), ('line', 40, -5.5, 130, -5.5)],
     # mid-block: straight drives along the road the radar looks down (head-on, tail-on),
     # then two drives across its view (the last two passes)
     'mid_block': [('line', 90, 3.5, 12, 3.5), ('line', 12, -3.5, 90, -3.5),

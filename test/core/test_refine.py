@@ -922,6 +922,31 @@ def test_a_direction_driven_on_the_other_carriageway_counts_as_driven(
     assert any(not c.driven for c in seen['candidates'])
 
 
+def test_on_a_divided_road_each_direction_is_advised_on_its_own_carriageway(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A divided road down the view, each direction on its own carriageway 11 m from the
+    other: every drive advised lies on a carriageway driven that way (a forty-fifth probe's
+    highway advice sent the vehicle north-eastbound down the south-westbound carriageway,
+    'again on a lane already driven')."""
+    seen = _record_candidates(monkeypatch)
+    scene = make_scene(5, model='interior', geometry='divided')
+    ref = _run(scene)
+    candidates: list[uncertainty.DriveCandidate] = seen['candidates']
+    assert len(candidates) >= 2
+    est = ref.extrinsics
+    bore = math.atan2(est.rotation[1, 0], est.rotation[0, 0])
+    yaw_r = math.atan2(scene.truth.rotation[1, 0], scene.truth.rotation[0, 0])
+    for cand in candidates:
+        at = est.translation_m[:2] + cand.range_m * np.array(
+            [math.cos(bore + cand.bearing_rad), math.sin(bore + cand.bearing_rad)])
+        rel = at - scene.truth.translation_m[:2]
+        across = -math.sin(yaw_r) * rel[0] + math.cos(yaw_r) * rel[1]
+        inbound = math.cos(cand.heading_rad - yaw_r) < 0.0
+        # inbound lanes at +5.5 and +9 m, outbound at -5.5 and -9 m
+        assert (across > 2.0) if inbound else (across < -2.0), (cand, across)
+        assert cand.driven
+
+
 def test_a_fit_that_moves_tilt_and_height_alone_has_not_run_off() -> None:
     """Clutter near the radar tilts stage 4's plane: the start is degrees off in roll and
     pitch and metres in height, and the vehicle's elevations take the fit back (a probe's
