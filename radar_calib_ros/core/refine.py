@@ -512,10 +512,13 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
     diagnostics['tilt_held'] = {'moved_deg': moved, 'line_spread_m': spread,
                                 'altitude_change_m': float(-difference[5])}
     diagnostics['advice'] = [
+        # 1 sigma, said as such: a forty-fifth probe read '4.8 m' on a road whose four lanes
+        # span 12.5 m as one lane's worth
         f'The vehicle was seen along one road only (its targets spread {spread:.1f} m across '
-        f'it), which cannot show the radar\'s roll and pitch about that road: the fit tilted '
-        f'the radar {moved:.1f} deg from the road plane the other road users show, following '
-        'the vehicle\'s reflection heights instead. The tilt was held at the road plane '
+        f'it, 1 sigma: lanes side by side on one road), which cannot show the radar\'s roll '
+        f'and pitch about that road: the fit tilted the radar {moved:.1f} deg from the road '
+        'plane the other road users show, following the vehicle\'s reflection heights '
+        'instead. The tilt was held at the road plane '
         f'(the altitude moved {-difference[5]:+.2f} m with it) and the uncertainty widened. '
         'Drive through the view on a second road, or turn through it, to measure the tilt.',
         *diagnostics['advice']]
