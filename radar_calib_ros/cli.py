@@ -529,7 +529,11 @@ def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
                                             if o.calibration is not None}, indent=2) + '\n')
         written.append(Path(args.json))
     ok = sum(o.calibration is not None for o in outcomes)
+    # the ones left out named again at the end, where a user reads first (a forty-seventh
+    # probe's '3 of 4 radars calibrated' said not which, and the files just lacked it)
+    failed = [f'{o.frame_id} ({o.topic}: {o.error})' for o in outcomes if o.calibration is None]
     print(f'{ok} of {len(outcomes)} radars calibrated in {time.perf_counter() - start:.1f} s'
+          + (f'; not calibrated: {"; ".join(failed)}' if failed else '')
           + (f'; written: {", ".join(str(p) for p in written)}' if written else ''), file=out)
     return max(o.exit_code for o in outcomes)
 

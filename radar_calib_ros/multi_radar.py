@@ -101,7 +101,8 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
             _LOG.warning('radar topic %s: its messages\' frame_id %r is %s, so its result is '
                          'for frame %r; publish each radar in a frame of its own, or rename '
                          'the frame in the result', topic, frame,
-                         'empty' if not frame.strip() else 'another radar\'s too', name)
+                         'empty (or the topic has no message)' if not frame.strip()
+                         else 'another radar\'s too', name)
         names[topic] = name
     return names
 

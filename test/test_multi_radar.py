@@ -230,3 +230,36 @@ def test_all_radars_prints_in_topic_order(monkeypatch: pytest.MonkeyPatch, tmp_p
     combined = yaml.safe_load((tmp_path / 'out' / 'all_radars.yaml').read_text())
     assert combined['/**']['ros__parameters']['radar_frames'] == ['radar_a', 'radar_b',
                                                                   'radar_c']
+
+
+def test_all_radars_names_the_radars_left_out_in_its_last_line(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """One radar of three cannot be calibrated: the closing line names it with its reason
+    (a forty-seventh probe read '3 of 4 radars calibrated' without which), exit 1."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from radar_calib_ros import multi_radar
+    found = {'/a/points': 'radar_a', '/b/points': 'radar_b', '/c/points': 'radar_c'}
+    monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
+
+    def fake_calibrate(bag: str, params: str | None, topic: str,
+                       frame_id: str) -> multi_radar.RadarOutcome:
+        if frame_id == 'radar_b':
+            return multi_radar.RadarOutcome(topic, frame_id, None,
+                                            'read: no radar frame in the recording', 1, ())
+        cal = {k: frame_id if k == 'radar_frame' else k for k in TRANSFORM_KEYS}
+        cal['quality'] = {}
+        return multi_radar.RadarOutcome(topic, frame_id, cal, None, 0, ())
+
+    monkeypatch.setattr(multi_radar, 'calibrate_topic', fake_calibrate)
+    monkeypatch.setattr(multi_radar, 'ProcessPoolExecutor', ThreadPoolExecutor)
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    code = main(['calibrate', str(bag), '--all-radars', '--output-dir', str(tmp_path / 'out'),
+                 '--jobs', '2'])
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert code == 1
+    assert last.startswith('2 of 3 radars calibrated')
+    assert ('not calibrated: radar_b (/b/points: read: no radar frame in the recording)'
+            in last), last

@@ -131,7 +131,7 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     used = max(n_passes, len(drives) - len(unused))
     headings = _used_headings_deg(headings, [d for d in drives if d not in unused], used)
     advice += _advice(used, headings, sigma, paper.inlier_ratio, misfit,
-                      refinement is None, config)
+                      refinement is None, config, _one_way_share(targets.yaw_rad))
     if not_rigid is not None:
         share, rigid_misfit = not_rigid
         advice.append(f'{100 * share:.0f} % of the targets in the vehicle\'s tracks do not move '
@@ -404,9 +404,29 @@ def _box_named(misfit_m: float, inlier_ratio: float) -> bool:
         misfit_m > _BOX_MISFIT_NOTE_M and inlier_ratio <= _BOX_MISFIT_NOTE_INSIDE))
 
 
+#: Share of the vehicle's targets seen heading within 60 deg of their mean direction from
+#: which the passes count as driven one way (``_one_way_share``).
+_ONE_WAY_SHARE = 0.9
+
+
+def _one_way_share(yaw_rad: F64) -> float:
+    """Share of the vehicle's targets seen while it headed within 60 deg of their mean
+    direction of travel (1.0 without targets).
+
+    Why: a pass's mean heading says nothing of a U-turn inside the view. A forty-seventh
+    probe's six U-turns in one arm, each driven east and west in view, had mean headings
+    'north' (the drift across the turn), and were told 'All 6 passes drove in one
+    direction (north) ... drive the opposite direction too'."""
+    yaw = np.asarray(yaw_rad, float)
+    if yaw.size == 0:
+        return 1.0
+    mean = math.atan2(float(np.sin(yaw).sum()), float(np.cos(yaw).sum()))
+    return float(np.mean(np.cos(yaw - mean) >= 0.5))
+
+
 def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
             inlier_ratio: float, misfit_m: float, bootstrap: bool,
-            config: CalibConfig) -> list[str]:
+            config: CalibConfig, one_way_share: float = 1.0) -> list[str]:
     advice: list[str] = []
     if n_passes < _FEW_PASSES:
         # Said even when the result looks tight: the reported uncertainty is the passes'
@@ -419,7 +439,7 @@ def _advice(n_passes: int, headings_deg: list[float], sigma: dict[str, float],
         h = np.radians(headings_deg)
         mean = math.atan2(float(np.sin(h).mean()), float(np.cos(h).mean()))
         spread = np.degrees(np.abs((h - mean + np.pi) % (2 * np.pi) - np.pi)).max()
-        if spread <= _ONE_DIRECTION_DEG:
+        if spread <= _ONE_DIRECTION_DEG and one_way_share >= _ONE_WAY_SHARE:
             bound = uncertainty.compass_name(math.radians(90.0) - mean)
             # said as one with the drives the uncertainty names before it, which may be
             # that direction again on another lane (a thirty-second probe read 'drive

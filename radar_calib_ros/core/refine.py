@@ -517,9 +517,10 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
         f'The vehicle was seen along one road only (its targets spread {spread:.1f} m across '
         f'it, 1 sigma: lanes side by side on one road), which cannot show the radar\'s roll '
         f'and pitch about that road: the fit tilted the radar {moved:.1f} deg from the road '
-        'plane the other road users show, following the vehicle\'s reflection heights '
-        'instead. The tilt was held at the road plane '
-        f'(the altitude moved {-difference[5]:+.2f} m with it) and the uncertainty widened. '
+        'plane of the moving targets (other road users, or with none clutter that passed as '
+        'moving), following the vehicle\'s reflection heights instead. The tilt was held at '
+        f'that plane (the altitude moved {-difference[5]:+.2f} m with it) and the uncertainty '
+        'widened. '
         'Drive through the view on a second road, or turn through it, to measure the tilt.',
         *diagnostics['advice']]
     _LOG.info('%s', diagnostics['advice'][0])

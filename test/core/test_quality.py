@@ -478,3 +478,25 @@ def test_the_headings_are_those_of_the_drives_the_fit_used_where_it_used_more() 
     # as many drives as stage 6's passes, or fewer known: stage 6's stand
     assert _used_headings_deg(stage_6, drives[:3], 3) == stage_6
     assert _used_headings_deg(stage_6, drives[:5], 8) == stage_6
+
+
+def test_u_turns_in_view_are_not_passes_driven_one_way() -> None:
+    """Six U-turns inside one arm, each driven east and west in view: their mean headings
+    all point across the turn ('north'), and a forty-seventh probe read 'All 6 passes drove
+    in one direction (north) ... drive the opposite direction too'. Seen heading both ways,
+    the passes are not called one-way; straight passes all one way still are."""
+    from radar_calib_ros.core.quality import _advice, _one_way_share
+
+    u_turns = np.concatenate([np.zeros(300), np.full(300, np.pi), np.full(40, np.pi / 2)])
+    one_way = np.radians(np.random.default_rng(1).normal(0.0, 10.0, 600))
+    assert _one_way_share(u_turns) < 0.6 and _one_way_share(one_way) > 0.99
+    assert _one_way_share(np.zeros(0)) == 1.0
+    sigma = {'along': 0.02, 'across': 0.02}
+    north = [2.0, 358.0, 5.0, 1.0, 3.0, 359.0]
+
+    def says_one_way(share: float) -> bool:
+        advice = _advice(6, north, sigma, 0.7, 0.2, False, CalibConfig(), share)
+        return any('one direction' in a for a in advice)
+
+    assert not says_one_way(_one_way_share(u_turns))
+    assert says_one_way(_one_way_share(one_way))
