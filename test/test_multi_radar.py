@@ -263,3 +263,29 @@ def test_all_radars_names_the_radars_left_out_in_its_last_line(
     assert last.startswith('2 of 3 radars calibrated')
     assert ('not calibrated: radar_b (/b/points: read: no radar frame in the recording)'
             in last), last
+
+
+def test_an_all_radars_runs_warnings_name_their_radar_and_clock_advice_its_own_file(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Side by side, the radars' warnings begin with their frame (a forty-eighth probe could
+    not tell which radar '... shifted by -0.20 s' was about); advice to set sync.time_offset
+    says to do so in a parameters file of that radar's own (followed in the shared one, it
+    put the next radar 4 m off)."""
+    import logging
+
+    from radar_calib_ros import multi_radar
+    log = logging.getLogger('radar_calib_ros.pipeline')
+    with caplog.at_level('WARNING'):
+        with multi_radar.radar_named_records('radar_north'):
+            log.warning('the hypotheses agree best with the radar stamps shifted by %+.2f s',
+                        -0.2)
+        log.warning('after the run')
+    messages = [r.getMessage() for r in caplog.records]
+    assert messages == ['radar_north: the hypotheses agree best with the radar stamps '
+                        'shifted by -0.20 s', 'after the run']
+    calibration = {'quality': {'advice': ['Set sync.time_offset to -0.35 and calibrate again.',
+                                          'Check vehicle.* before sync.time_offset.']}}
+    multi_radar._own_clock_advice(calibration)
+    first, second = calibration['quality']['advice']
+    assert first.endswith('in a parameters file of its own.') and 'alone' in first
+    assert second == 'Check vehicle.* before sync.time_offset.'
