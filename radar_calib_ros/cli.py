@@ -384,10 +384,27 @@ def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
     from radar_calib_ros.multi_radar import ambiguous_radar_topics
     topics = ambiguous_radar_topics(bag, config)
     if topics:
+        # a frame named that picks no topic, or two, is said as such (a forty-seventh and a
+        # forty-eighth probe read 'the parameters name none' beside their radar.frame_id)
+        named = ('the parameters name none'
+                 if 'radar.frame_id' not in config.explicit else
+                 f'radar.frame_id {config.radar.frame_id!r} is the frame of '
+                 + _frame_matches(bag, config.radar.frame_id)
+                 + ', and the parameters name no radar_topic')
         raise BagReadError(
-            f'the bag has {len(topics)} radar topics ({", ".join(topics)}) and the parameters '
-            'name none: calibrate them all with `radar-calib calibrate BAG --all-radars`, or '
-            'set radar_topic to one of them')
+            f'the bag has {len(topics)} radar topics ({", ".join(topics)}) and {named}: '
+            'calibrate them all with `radar-calib calibrate BAG --all-radars`, or set '
+            'radar_topic to one of them')
+
+
+def _frame_matches(bag: str, frame_id: str) -> str:
+    """Which of the bag's radar topics are in ``frame_id``, in words."""
+    from radar_calib_ros.io.bag import radar_frame_ids
+    matching = [topic for topic, frame in radar_frame_ids(bag).items()
+                if frame.lstrip('/') == frame_id.lstrip('/')]
+    if not matching:
+        return 'none of them'
+    return f'{len(matching)} of them ({", ".join(matching)})'
 
 
 def _topic_of_frame(bag: str, config: CalibConfig, frame_id: str) -> str | None:
@@ -480,6 +497,17 @@ def _warn_frame_id(bag: str, config: CalibConfig) -> None:
         print(f'warning: {mismatch}', file=sys.stderr)
 
 
+def _note_unused_radar_choice(params: str | None) -> None:
+    """Say that ``--all-radars`` takes every radar topic whatever the parameters choose:
+    a forty-eighth probe's radar_topic and radar.frame_id went unused without a word."""
+    if not params:
+        return
+    chosen = sorted({'radar_topic', 'radar.frame_id'} & CalibConfig.from_file(params).explicit)
+    if chosen:
+        print(f'note: --all-radars calibrates every radar topic, each under its own frame '
+              f'(not used from {params}: {", ".join(chosen)})', file=sys.stderr)
+
+
 def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
     """``calibrate --all-radars``: every radar topic in parallel processes, one result per
     radar frame in ``--output-dir`` plus the combined ``all_radars.yaml``."""
@@ -497,6 +525,7 @@ def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
     _refuse_overwriting_inputs({'--output': args.output, '--json': args.json},
                                {'parameters file (--params)': args.params}, args.bag)
     _check_writable(args.output, args.json)
+    _note_unused_radar_choice(args.params)
     start = time.perf_counter()
 
     def done(outcome: Any) -> None:

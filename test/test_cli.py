@@ -315,6 +315,29 @@ def test_calibrate_finds_the_radar_of_the_frame_the_parameters_name(
     assert cli._radar_of_frame('b', named).radar_topic == '/north/points'
 
 
+def test_a_frame_that_picks_no_radar_topic_or_two_is_named_in_the_refusal(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Several radar topics, no radar_topic, radar.frame_id naming a frame no topic is in
+    or two topics are in: the refusal says what the frame matched (it said 'the parameters
+    name none' beside the frame they named, a forty-seventh and forty-eighth probe)."""
+    from radar_calib_ros import cli, multi_radar
+    from radar_calib_ros.errors import BagReadError
+    from radar_calib_ros.io import bag as bag_io
+
+    frames = {'/a/points': 'radar_east', '/b/points': 'radar_east', '/c/points': 'radar_w'}
+    monkeypatch.setattr(bag_io, 'radar_frame_ids', lambda path: frames)
+    monkeypatch.setattr(multi_radar, 'ambiguous_radar_topics', lambda bag, config: list(frames))
+    for frame, said in (('radar_east', "'radar_east' is the frame of 2 of them (/a/points, "
+                                       '/b/points), and the parameters name no radar_topic'),
+                        ('radar_x', "'radar_x' is the frame of none of them")):
+        config = CalibConfig.from_mapping({'radar.frame_id': frame})
+        with pytest.raises(BagReadError, match='3 radar topics') as err:
+            cli._refuse_ambiguous_radar('b', config)
+        assert said in str(err.value) and 'name none' not in str(err.value)
+    with pytest.raises(BagReadError, match='the parameters name none'):
+        cli._refuse_ambiguous_radar('b', CalibConfig())
+
+
 def test_a_warning_said_by_several_steps_is_printed_once(
         capsys: pytest.CaptureFixture[str]) -> None:
     """The bag is opened by several steps of one run, each warning alike ('has no

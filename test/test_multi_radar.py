@@ -256,10 +256,15 @@ def test_all_radars_names_the_radars_left_out_in_its_last_line(
     monkeypatch.setattr(multi_radar, 'ProcessPoolExecutor', ThreadPoolExecutor)
     bag = tmp_path / 'bag'
     bag.mkdir()
+    params = tmp_path / 'p.yaml'
+    params.write_text("/**:\n  ros__parameters:\n    radar_topic: /a/points\n")
     code = main(['calibrate', str(bag), '--all-radars', '--output-dir', str(tmp_path / 'out'),
-                 '--jobs', '2'])
-    last = capsys.readouterr().out.splitlines()[-1]
+                 '--jobs', '2', '--params', str(params)])
+    captured = capsys.readouterr()
+    last = captured.out.splitlines()[-1]
     assert code == 1
+    # the parameters' choice of one radar is not used, and said so
+    assert f'(not used from {params}: radar_topic)' in captured.err
     assert last.startswith('2 of 3 radars calibrated')
     assert ('not calibrated: radar_b (/b/points: read: no radar frame in the recording)'
             in last), last
