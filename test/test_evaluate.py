@@ -503,6 +503,36 @@ def test_a_check_that_leaves_metres_open_cannot_pass_and_a_fallen_r_i_says_moved
     assert verdict == 'doubtful' and '5 % of cases against 67 %' in reason
 
 
+def test_a_fit_that_runs_off_a_calibration_missing_the_box_does_not_hold(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The refit fails (it ran off) and the vehicle's targets fall inside the box a tenth as
+    often as when calibrated: 'does not hold' (a forty-seventh probe's 13 deg turn was
+    'cannot tell', blamed on folded velocities, where a 10 deg turn was caught). A failed
+    refit with the box still met, or with no stated r_i, stays 'cannot tell'."""
+    from types import SimpleNamespace
+
+    from radar_calib_ros.core import refine
+    from radar_calib_ros.errors import InsufficientDataError
+
+    def runs_off(*args: Any, **kwargs: Any) -> None:
+        raise InsufficientDataError('refine', 'the final refinement ran 0.8 m and 14.0 deg away')
+    monkeypatch.setattr(refine, 'refine_extrinsics', runs_off)
+
+    def verdict(r_i_now: float, r_i_then: float | None) -> tuple[str, str]:
+        quality = {} if r_i_then is None else {'inlier_ratio': r_i_then}
+        ev = SimpleNamespace(calibration={'quality': quality}, extrinsics=None, recording=None,
+                             tracked=None, vehicle_track_ids=(),
+                             paper=SimpleNamespace(inlier_ratio=r_i_now))
+        agreement = evaluate._judged_fit(ev, CalibConfig(), {})[0]  # type: ignore[arg-type]
+        return agreement.verdict, agreement.reason
+
+    held, reason = verdict(0.076, 0.64)
+    assert held == 'does not hold' and '8 % of cases against 64 %' in reason
+    assert 'ran 0.8 m and 14.0 deg' in reason
+    assert verdict(0.60, 0.64)[0] == 'cannot tell'
+    assert verdict(0.05, None)[0] == 'cannot tell'
+
+
 def test_evaluate_tracks_a_fast_vehicle_as_calibrate_does(drive: Any,
                                                           monkeypatch: pytest.MonkeyPatch
                                                           ) -> None:
