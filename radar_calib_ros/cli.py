@@ -397,11 +397,16 @@ def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
             'radar_topic to one of them')
 
 
+def _topics_in_frame(frames: Mapping[str, str], frame_id: str) -> list[str]:
+    """The radar topics (of ``radar_frame_ids``) whose messages are in ``frame_id``."""
+    return [topic for topic, frame in frames.items()
+            if frame.lstrip('/') == frame_id.lstrip('/')]
+
+
 def _frame_matches(bag: str, frame_id: str) -> str:
     """Which of the bag's radar topics are in ``frame_id``, in words."""
     from radar_calib_ros.io.bag import radar_frame_ids
-    matching = [topic for topic, frame in radar_frame_ids(bag).items()
-                if frame.lstrip('/') == frame_id.lstrip('/')]
+    matching = _topics_in_frame(radar_frame_ids(bag), frame_id)
     if not matching:
         return 'none of them'
     return f'{len(matching)} of them ({", ".join(matching)})'
@@ -414,8 +419,7 @@ def _topic_of_frame(bag: str, config: CalibConfig, frame_id: str) -> str | None:
     if 'radar_topic' in config.explicit:
         return None
     frames = radar_frame_ids(bag)
-    matching = [topic for topic, frame in frames.items()
-                if frame.lstrip('/') == frame_id.lstrip('/')]
+    matching = _topics_in_frame(frames, frame_id)
     return matching[0] if len(frames) > 1 and len(matching) == 1 else None
 
 

@@ -561,12 +561,11 @@ def _inlier_fall(evaluation: Evaluation) -> tuple[float, float] | None:
 def _unseen_verdict(evaluation: Evaluation, unseen: str, n_passes: int) -> tuple[str, str]:
     """'doubtful' where the vehicle's targets fall inside its box less than
     ``_INLIER_FALL`` times as often as at calibration, else 'cannot tell'."""
-    quality = evaluation.calibration.get('quality') or {}
-    stated = _number(quality.get('inlier_ratio'))
-    now = float(evaluation.paper.inlier_ratio)
     drive = ('drive across the view or turn through it (views of the vehicle\'s sides) to '
              'check it')
-    if stated is not None and stated > 0 and math.isfinite(now) and now < _INLIER_FALL * stated:
+    fell = _inlier_fall(evaluation)
+    if fell is not None and fell[0] < _INLIER_FALL * fell[1]:
+        now, stated = fell
         return 'doubtful', (
             f'a fit on this recording alone ({n_passes} passes) cannot check {unseen}, '
             f'and the vehicle\'s targets fall inside its box at the calibration in '

@@ -60,6 +60,11 @@ _VIEW_MOVING_MPS = 0.5
 _VIEW_MIN_MOVING = 1000
 
 
+def _view_stride(targets: Targets) -> int:
+    """Every how many targets :meth:`Recording.view_sample_m` takes one."""
+    return max(1, len(targets) // _VIEW_SAMPLE)
+
+
 @dataclass(frozen=True, slots=True)
 class Recording:
     """A calibration drive: radar frames and targets, vehicle poses, and what was dropped.
@@ -94,7 +99,7 @@ class Recording:
         """Up to about ``_VIEW_SAMPLE`` of the targets' sensor-frame positions, evenly
         strided: enough for the percentiles that outline the radar's view, without copies
         of every target (an imaging radar's 48 million took a gigabyte a percentile)."""
-        sample: F64 = self.targets.positions_m[::max(1, len(self.targets) // _VIEW_SAMPLE)]
+        sample: F64 = self.targets.positions_m[::_view_stride(self.targets)]
         return sample
 
     def radar_view(self) -> RadarView:
@@ -114,8 +119,8 @@ class Recording:
         # takes a car's lower half, cut off near the radar, for seen. Clutter reaching 5 deg
         # below a +-10 deg radar's view (800 targets a frame, an imaging radar's) put our
         # baseline's radar 21 cm low and pitched 0.45 deg; outlined so, 9 cm and 0.26 deg.
-        speed = np.abs(self.targets.radial_velocity_mps[
-            ::max(1, len(self.targets) // _VIEW_SAMPLE)])
+        # the same targets as the sample's positions
+        speed = np.abs(self.targets.radial_velocity_mps[::_view_stride(self.targets)])
         moving = speed > _VIEW_MOVING_MPS        # NaN: not moving
         if int(moving.sum()) >= _VIEW_MIN_MOVING:
             el[0] = max(float(el[0]), float(np.percentile(elevation[moving], 1.0)))

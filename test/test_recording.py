@@ -35,6 +35,19 @@ def _one_frame(builder: RecordingBuilder) -> None:
     builder.add_radar_frame(RadarFrame(T0, np.array([[5.0, 0.0, 0.0]]), np.zeros(1)))
 
 
+def _builder_with_fixes(frame: LocalFrame, t_s: np.ndarray, local: np.ndarray
+                        ) -> RecordingBuilder:
+    """A builder with one radar frame and RTK fixes (2 / 3 cm declared) of the ``local``
+    positions (n, 3) at ``t_s`` (n,) seconds from T0."""
+    lat, lon, alt = frame.local_to_geodetic(local)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    for i, ti in enumerate(t_s):
+        builder.add_fix(FixSample(T0 + int(round(ti * 1e9)), lat[i], lon[i], alt[i], 2,
+                                  (0.02, 0.03)))
+    return builder
+
+
 def circle_builder(radius_m: float = 30.0, speed_mps: float = 15.0, rate_hz: float = 50.0,
                    duration_s: float = 20.0, written: Any = None,
                    config: CalibConfig | None = None,
@@ -687,13 +700,7 @@ def test_slow_fixes_alone_follow_a_tight_turn_on_a_spline() -> None:
     t = np.arange(0.0, 30.0, 1.0)
     local = np.column_stack([radius * np.sin(omega * t), radius * (1 - np.cos(omega * t)),
                              np.zeros_like(t)])
-    lat, lon, alt = frame.local_to_geodetic(local)
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    for i, ti in enumerate(t):
-        builder.add_fix(FixSample(T0 + int(round(ti * 1e9)), lat[i], lon[i], alt[i], 2,
-                                  (0.02, 0.03)))
-    rec = builder.build()
+    rec = _builder_with_fixes(frame, t, local).build()
     assert _poses_at_fixes(rec) == t.size and rec.counters['poses_splined_between_fixes'] > 250
     tv = (rec.vehicle.stamps_ns - T0) * 1e-9
     xy = rec.vehicle.positions_m[:, :2] - rec.vehicle.positions_m[0, :2]
@@ -1543,12 +1550,7 @@ def _weaving_fixes(duration_s: float, floats: list[tuple[float, float, tuple[flo
         wander = np.cumsum(rng.normal(0.0, 0.003, (inside.sum(), 2)), axis=0)
         local[inside, :2] += (np.asarray(bias) + wander
                               + rng.normal(0.0, float_noise_m, (inside.sum(), 2)))
-    lat, lon, alt = frame.local_to_geodetic(local)
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
-    for i, ti in enumerate(t_fix):
-        builder.add_fix(FixSample(T0 + int(round(ti * 1e9)), lat[i], lon[i], alt[i], 2,
-                                  (0.02, 0.03)))
+    builder = _builder_with_fixes(frame, t_fix, local)
     if with_odometry:
         t_odom = np.arange(0.0, duration_s, 0.02)
         s_odom, y_odom = state(t_odom)
@@ -1915,15 +1917,10 @@ def test_a_slow_bend_is_no_straight_stretch_for_the_heading_checks() -> None:
     yaw = np.cumsum(yaw_rate) * 1e-3
     rear = np.column_stack([np.cumsum(speed * np.cos(yaw)), np.cumsum(speed * np.sin(yaw))]) * 1e-3
     ref = rear + ahead_m * np.column_stack([np.cos(yaw), np.sin(yaw)])
-    builder = RecordingBuilder(CalibConfig())
-    _one_frame(builder)
     t_fix = np.arange(0.0, 240.0, 0.05)
     i_fix = np.round(t_fix * 1000).astype(int)
-    local = np.column_stack([ref[i_fix], np.zeros(t_fix.size)])
-    lat, lon, alt = frame.local_to_geodetic(local)
-    for i, ti in enumerate(t_fix):
-        builder.add_fix(FixSample(T0 + int(round(ti * 1e9)), lat[i], lon[i], alt[i], 2,
-                                  (0.02, 0.03)))
+    builder = _builder_with_fixes(frame, t_fix,
+                                  np.column_stack([ref[i_fix], np.zeros(t_fix.size)]))
     conv = float(frame.local_convergence_rad(np.array([LAT0]), np.array([LON0]))[0])
     for ti in np.arange(0.0, 240.0, 0.02):
         k = int(round(ti * 1000))
