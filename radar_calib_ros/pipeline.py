@@ -26,6 +26,7 @@ from radar_calib_ros.result import calibration_dict, quality_dict
 from radar_calib_ros.types import (
     Extrinsics, GroundPlane, Hypothesis, HypothesisSelection, MountTurn, QualityReport,
     Refinement, SmoothedTrack, Targets, TrackedTargets)
+from radar_calib_ros.vehicle_track import heading_offset_is_grid
 
 _LOG = logging.getLogger(__name__)
 
@@ -395,11 +396,6 @@ def _beyond_search(shift_s: float, fitted_s: float, max_off: float) -> bool:
     ``sync.max_time_offset`` (``max_off``)."""
     return (max_off > 0.0 and abs(shift_s) >= max_off - 0.5 * _CLOCK_STEP_S
             and shift_s * fitted_s > 0.0 and abs(fitted_s) > max_off)
-
-
-#: An Odometry heading offset within this of the site's meridian convergence is taken
-#: for a yaw against the UTM grid's north [deg] (the offset is measured to 0.01-0.05 deg).
-_GRID_HEADING_TOLERANCE_DEG = 0.1
 
 
 def _shift_note(shift_s: float, fitted_s: float | None) -> str | None:
@@ -802,14 +798,16 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'or another frame\'s): the heading was taken from the course over '
                      'ground. Check the driver\'s orientation.')
     offset_cdeg = recording.counters.get('odometry_heading_offset_cdeg', 0)
-    # a few tenths are taken off silently: a good INS is aligned to about that
-    if abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG:
-        convergence = math.degrees(float(np.ravel(recording.frame.utm_convergence_rad(
-            recording.frame.lat0_deg, recording.frame.lon0_deg))[0]))
-        if abs(abs(offset_cdeg / 100) - abs(convergence)) <= _GRID_HEADING_TOLERANCE_DEG:
+    convergence = math.degrees(float(np.ravel(recording.frame.utm_convergence_rad(
+        recording.frame.lat0_deg, recording.frame.lon0_deg))[0]))
+    grid = bool(offset_cdeg) and heading_offset_is_grid(offset_cdeg / 100, convergence)
+    # a few tenths are taken off silently: a good INS is aligned to about that; a grid
+    # heading is named at any size, as the driver is what to fix
+    if grid or abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG:
+        if grid:
             # a probe's, and two generators', yaw against the UTM grid's north was blamed on
             # a turned INS: the offset is the site's meridian convergence
-            notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the '
+            notes.append(f'The Odometry heading is {offset_cdeg / 100:+.2f} deg off the '
                          'vehicle\'s course over ground throughout, the meridian convergence '
                          f'here ({abs(convergence):.2f} deg): its yaw is most likely against '
                          'the UTM grid\'s north rather than true north (REP-103\'s ENU, as the '

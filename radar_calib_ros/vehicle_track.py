@@ -1026,6 +1026,7 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, positions: F64, yaw
             counters['odometry_heading_settled_s'] = max(1, int(round(settled - t[0])))
             steady = straight & (t[moving] >= settled)
         offset = _heading_offset(yaw[moving], courses, counters, t[moving], steady)
+        _warn_heading_offset(offset, frame, lat, lon, counters)
         wander = (_heading_wander(t[moving][straight],
                                   wrap_angle(yaw[moving] - offset - best)[straight], t,
                                   counters) if rtk else None)
@@ -1096,9 +1097,43 @@ def _heading_offset(heading: F64, courses: list[F64], counters: Counter[str],
     if abs(offset) < threshold:
         return 0.0
     counters['odometry_heading_offset_cdeg'] = int(round(100.0 * math.degrees(offset)))
-    _LOG.warning('the Odometry heading is %.2f deg off the vehicle\'s course over ground '
-                 'throughout: taken off', math.degrees(offset))
     return offset
+
+
+#: An Odometry heading offset within this of the site's meridian convergence is taken
+#: for a yaw against the UTM grid's north [deg] (the offset is measured to 0.01-0.05 deg);
+#: only where the convergence is itself no smaller than it.
+_GRID_HEADING_TOLERANCE_DEG = 0.1
+
+
+def heading_offset_is_grid(offset_deg: float, convergence_deg: float) -> bool:
+    """Whether an Odometry heading offset is the site's meridian convergence: a yaw
+    against the UTM grid's north rather than true north.
+
+    Why: a thirty-fifth probe's, a forty-seventh's (0.13 deg, warned of as a turned INS
+    with no word in the result) and two generators' Odometry yaw came from UTM easting and
+    northing; the contract's REP-103 yaw is against true north.
+    """
+    return (abs(convergence_deg) >= _GRID_HEADING_TOLERANCE_DEG
+            and abs(abs(offset_deg) - abs(convergence_deg)) <= _GRID_HEADING_TOLERANCE_DEG)
+
+
+def _warn_heading_offset(offset: float, frame: LocalFrame, lat: F64, lon: F64,
+                         counters: Counter[str]) -> None:
+    """Say on stderr what a heading offset taken off most likely is."""
+    if not offset:
+        return
+    convergence = math.degrees(float(np.ravel(frame.utm_convergence_rad(
+        float(np.median(lat)), float(np.median(lon))))[0]))
+    if heading_offset_is_grid(math.degrees(offset), convergence):
+        counters['odometry_heading_grid'] = 1
+        _LOG.warning('the Odometry heading is %.2f deg off the vehicle\'s course over ground '
+                     'throughout, the meridian convergence here (%.2f deg): a yaw against '
+                     'the UTM grid\'s north, not true north; taken off', math.degrees(offset),
+                     abs(convergence))
+    else:
+        _LOG.warning('the Odometry heading is %.2f deg off the vehicle\'s course over ground '
+                     'throughout: taken off', math.degrees(offset))
 
 
 #: The Odometry heading's offset from the course over ground, in medians over bins of this

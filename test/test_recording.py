@@ -1140,6 +1140,28 @@ def test_a_heading_offset_of_the_meridian_convergence_is_named_as_a_grid_heading
         assert ('INS yaw alignment' in notes[0]) != grid
 
 
+def test_a_grid_heading_near_the_central_meridian_is_named_at_a_tenth_of_a_degree() -> None:
+    """Near its zone's central meridian a site's convergence is a tenth of a degree (a
+    forty-seventh probe's 0.13 deg): a grid-north yaw is named there too, in the result as
+    on stderr, while an offset that is not the convergence stays silent below 0.3 deg."""
+    import dataclasses
+
+    from radar_calib_ros.pipeline import _data_notes
+    from radar_calib_ros.vehicle_track import heading_offset_is_grid
+
+    assert heading_offset_is_grid(0.13, -0.126) and heading_offset_is_grid(-0.2, 0.126)
+    assert not heading_offset_is_grid(0.3, 0.126)
+    assert not heading_offset_is_grid(0.1, 0.04)      # no convergence to speak of
+    rec = circle_builder(written=lambda yaw: yaw)[0].build()
+    rec = dataclasses.replace(rec, frame=LocalFrame.at(48.8, 9.17))
+    convergence = math.degrees(float(np.ravel(rec.frame.utm_convergence_rad(48.8, 9.17))[0]))
+    assert 0.1 < abs(convergence) < 0.2
+    for offset_cdeg, grid in ((round(100 * abs(convergence)), True), (-25, False)):
+        rec.counters['odometry_heading_offset_cdeg'] = offset_cdeg
+        notes = [n for n in _data_notes(rec, []) if 'Odometry heading is' in n]
+        assert len(notes) == int(grid) and all('meridian convergence' in n for n in notes)
+
+
 @pytest.mark.parametrize('offset_deg', [0.5, 12.0, -6.0])
 def test_a_constant_ins_heading_offset_is_taken_off(offset_deg: float) -> None:
     """An INS mounted turned by a few degrees (below the 20 deg check that condemns an
