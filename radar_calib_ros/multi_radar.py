@@ -79,7 +79,8 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
     """Radar topic -> the frame its result is for, sorted by topic: the messages' frame_id
     as TF has it (a frame with '/' keeps it: a carla-ros-bridge's 'ego_vehicle/radar_front'
     renamed would be a transform nobody looks up), or, where that is empty or shared by
-    several topics, the topic made a name.
+    several topics, the topic made a name. A topic that repeats another's clouds in the
+    same frame is left out (``_copied_topics``).
 
     Raises
     ------
@@ -90,6 +91,8 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
     found = radar_frame_ids(bag)
     if not found:
         raise BagReadError(f'no radar topic (PointCloud2 or RadarScan) in {str(bag)!r}')
+    for copy in _copied_topics(bag, found):
+        del found[copy]
     names: dict[str, str] = {}
     # sorted by topic: the order the results are printed, written and combined in
     for topic, frame in sorted(found.items()):
@@ -106,6 +109,34 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
                          else 'another radar\'s too', name)
         names[topic] = name
     return names
+
+
+def _copied_topics(bag: str | Path, found: Mapping[str, str]) -> list[str]:
+    """The radar topics that repeat an earlier topic's clouds in the same frame (equal
+    first messages), each said.
+
+    Why: a forty-eighth probe's radar recorded on two topics (a relay, a remap) was
+    calibrated twice under names made of the topics, and its own frame got no result.
+    """
+    from radar_calib_ros.io.bag import radar_fingerprints
+    shared = [t for t, f in found.items() if f.strip() and list(found.values()).count(f) > 1]
+    if not shared:
+        return []
+    prints = radar_fingerprints(bag, shared)
+    first: dict[tuple[str, tuple[str, ...]], str] = {}
+    copies = []
+    for topic in sorted(shared):
+        key = (found[topic], prints.get(topic, ()))
+        if not key[1]:
+            continue
+        if key in first:
+            copies.append(topic)
+            _LOG.warning('radar topic %s carries the same clouds as %s (frame %r): the radar '
+                         'is calibrated once, from %s', topic, first[key], found[topic],
+                         first[key])
+        else:
+            first[key] = topic
+    return copies
 
 
 def _safe(name: str) -> str:

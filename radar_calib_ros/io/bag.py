@@ -13,6 +13,7 @@ that is not there, a message we cannot decode) becomes one ``BagReadError`` or
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
 import sqlite3
 import struct
@@ -550,6 +551,35 @@ def radar_frame_ids(path: str | Path) -> dict[str, str]:
                 frames[connection.topic] = str(msg.header.frame_id)
                 break
     return dict(sorted(frames.items()))
+
+
+def radar_fingerprints(path: str | Path, topics: Iterable[str],
+                       count: int = 8) -> dict[str, tuple[str, ...]]:
+    """Topic -> digests of its first ``count`` serialised messages (empty for a topic with
+    none): two topics with equal digests carry the same clouds.
+
+    Raises
+    ------
+    BagReadError
+        The bag cannot be opened or read.
+    """
+    path = Path(path)
+    wanted = set(topics)
+    prints: dict[str, tuple[str, ...]] = {}
+    with _open_reader(path) as reader:
+        for topic in sorted(wanted):
+            connections = [c for c in reader.connections if c.topic == topic]
+            digests: list[str] = []
+            iterator = reader.messages(connections=connections) if connections else iter(())
+            try:
+                for _, _, rawdata in iterator:
+                    digests.append(hashlib.sha1(bytes(rawdata)).hexdigest())
+                    if len(digests) >= count:
+                        break
+            except (OSError, *_STORAGE_ERRORS) as err:
+                raise BagReadError(f'reading bag {str(path)!r}: {_reason(err)}') from err
+            prints[topic] = tuple(digests)
+    return prints
 
 
 def configured_radar_frame_id(path: str | Path, config: CalibConfig) -> str:

@@ -694,3 +694,39 @@ def test_fixes_that_all_report_no_fix_are_counted_in_the_reason(tmp_path: Path,
     write_bag(tmp_path / 'no_fix', no_fix(), typestore=ts)
     with pytest.raises(InsufficientDataError, match=f'all {len(s["stamps"])} report no fix'):
         read_recording(tmp_path / 'no_fix', CalibConfig())
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_radar_recorded_on_two_topics_is_one_radar(
+        tmp_path: Path, good_bags: dict[str, Path], storage: str,
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A radar's clouds relayed onto a second topic (a forty-eighth probe: calibrated twice
+    under names made of the topics, and no result for its own frame): --all-radars
+    calibrates it once under its frame and says so; a topic in that frame with other
+    clouds is another radar and keeps its own name."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+    from radar_calib_ros.io.bag import radar_fingerprints
+    from radar_calib_ros.multi_radar import radar_frames
+
+    out = tmp_path / 'copied'
+    with Reader(good_bags[storage]) as reader, Writer(
+            out, version=9, storage_plugin=StoragePlugin[storage.upper()]) as writer:
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data,
+                                             rihs01=c.digest) for c in reader.connections}
+        radar = next(c for c in reader.connections if c.msgtype.endswith('PointCloud2'))
+        copy = writer.add_connection('/relay' + radar.topic, radar.msgtype,
+                                     msgdef=radar.msgdef.data, rihs01=radar.digest)
+        for conn, t, raw in reader.messages():
+            writer.write(conns[conn.id], t, raw)
+            if conn.id == radar.id:
+                writer.write(copy, t, raw)
+    from radar_calib_ros.io.bag import radar_frame_ids
+    frame = radar_frame_ids(out)[radar.topic]
+    prints = radar_fingerprints(out, [radar.topic, '/relay' + radar.topic, '/absent'])
+    assert prints[radar.topic] == prints['/relay' + radar.topic] and len(prints[radar.topic]) == 8
+    assert prints['/absent'] == ()
+    with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+        assert radar_frames(out) == {radar.topic: frame}
+    said = ' '.join(r.getMessage() for r in caplog.records)
+    assert f'/relay{radar.topic} carries the same clouds as {radar.topic}' in said
