@@ -124,7 +124,8 @@ class Agreement:
     time_offset_s : the radar clock offset this recording shows on top of the calibration's
     (recordings of other days may differ: reported, not judged) [s];
     moved : a sentence where the radar moved during this recording (a step in the passes'
-    own yaws, or the fit's own halves check), else None.
+    own yaws, or the fit's own halves check), else None;
+    fit_sigmas : the fit's own 1-sigma per component, its priors included.
     """
 
     verdict: str
@@ -134,6 +135,7 @@ class Agreement:
     n_passes: int = 0
     time_offset_s: float = math.nan
     moved: str | None = None
+    fit_sigmas: dict[str, float] = field(default_factory=dict)
 
     @property
     def headline(self) -> str:
@@ -404,7 +406,10 @@ def check_agreement(evaluation: Evaluation, config: CalibConfig) -> Agreement:
         return agreement
     # the passes' own yaws first: they say by how much each side is off the calibration
     # (the fit's own step is taken against its blend of the two mounts)
-    moved = (_yaw_step_during(evaluation, config, fitted, agreement.differences['yaw_deg'])
+    tilt_sigma = (agreement.fit_sigmas.get('roll_deg', 0.0),
+                  agreement.fit_sigmas.get('pitch_deg', 0.0))
+    moved = (_yaw_step_during(evaluation, config, fitted, agreement.differences['yaw_deg'],
+                              tilt_sigma)
              or _moved_during(diagnostics, evaluation.recording))
     if moved is not None:
         # Whatever the blend of before and after agrees with, a calibration of one mount
@@ -476,7 +481,8 @@ def _judged_fit(evaluation: Evaluation, config: CalibConfig, stated: Mapping[str
     sigmas = {k: (math.hypot(fit_sigmas[k], stated[k]) if k in stated else full_sigmas[k])
               for k in differences}
     agreement = Agreement('holds', '', differences, sigmas, int(fit.n_passes),
-                          float(fit.extrinsics.time_offset_s - ext.time_offset_s))
+                          float(fit.extrinsics.time_offset_s - ext.time_offset_s),
+                          fit_sigmas=full_sigmas)
     if not _has_uncertainty(sigmas):
         return replace(agreement, verdict='cannot tell', reason=(
             'the fit on this recording alone has no uncertainty (fewer than two passes '
@@ -680,7 +686,8 @@ def _moved_during(diagnostics: Mapping[str, Any], recording: Recording) -> str |
 
 
 def _yaw_step_during(evaluation: Evaluation, config: CalibConfig, fitted: Extrinsics,
-                     fitted_yaw_deg: float) -> str | None:
+                     fitted_yaw_deg: float, tilt_sigma_deg: tuple[float, float] = (0.0, 0.0)
+                     ) -> str | None:
     """A step in the yaw the passes' radial velocities give (``metrics.pass_yaw_offsets``,
     ``refine_covariance.yaw_step``), as a sentence, else None. The fit over the whole
     recording may miss it: it blends the mounts and its gate drops the targets of the
@@ -688,11 +695,15 @@ def _yaw_step_during(evaluation: Evaluation, config: CalibConfig, fitted: Extrin
     off). The yaws are taken against that fit (``fitted``, ``fitted_yaw_deg`` off the
     calibration), not the calibration: a calibration off in pitch turns each pass's yaw by
     another amount, as its view differs, and read as a step (a forty-first probe's radar
-    re-aimed 0.8 deg in pitch before the drive: 'turned by -0.3 deg during it')."""
+    re-aimed 0.8 deg in pitch before the drive: 'turned by -0.3 deg during it'). That
+    fit's own roll and pitch errors (``tilt_sigma_deg``, 1-sigma) shift passes seen at
+    other angles by other amounts: a step the two sides' views make of them is no turn."""
     rec = evaluation.recording
-    yaw, weight, spans = metrics.pass_yaw_offsets(rec, evaluation.target_index, fitted,
-                                                  config)
-    k = refine_covariance.yaw_step(yaw, weight, config.hypotheses.min_passes)
+    passes = metrics.pass_yaw_offsets(rec, evaluation.target_index, fitted, config)
+    yaw, weight, spans = passes.yaw_rad, passes.weight, passes.spans_ns
+    k = refine_covariance.yaw_step(yaw, weight, config.hypotheses.min_passes,
+                                   passes.tilt_shift, np.radians(tilt_sigma_deg),
+                                   refine_covariance.YAW_STEP_TILT_Z)
     if k is None:
         return None
     before = fitted_yaw_deg + math.degrees(float(np.average(yaw[:k], weights=weight[:k])))

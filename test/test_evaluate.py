@@ -443,15 +443,16 @@ def test_a_mount_turned_during_the_recording_does_not_hold(drive: Any) -> None:
     cal = _stated(_calibration(summary.truth))
     tracked = evaluate.track_targets(recording, config)
     before = evaluate.evaluate_tracked(recording, tracked, cal, config)
-    yaw, weight, spans = metrics.pass_yaw_offsets(recording, before.target_index,
-                                                  before.extrinsics, config)
+    passes = metrics.pass_yaw_offsets(recording, before.target_index, before.extrinsics,
+                                      config)
+    yaw, weight, spans = passes.yaw_rad, passes.weight, passes.spans_ns
     assert yaw.size >= 4 and np.all(weight > 0) and np.all(np.diff(spans[:, 0]) > 0)
     # at the truth every pass's yaw is the calibration's within a few tenths of a degree
     assert np.all(np.abs(np.degrees(yaw)) < 0.2), np.degrees(yaw)
     turned = evaluate.evaluate_tracked(recording, tracked, _stated(_calibration(
         summary.truth, yaw_deg=0.5)), config)
     shifted = metrics.pass_yaw_offsets(recording, turned.target_index, turned.extrinsics,
-                                       config)[0]
+                                       config).yaw_rad
     np.testing.assert_allclose(np.degrees(shifted), np.degrees(yaw[:shifted.size]) - 0.5,
                                atol=0.05)
     assert evaluate._yaw_step_during(before, config, before.extrinsics, 0.0) is None

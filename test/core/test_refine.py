@@ -1437,6 +1437,28 @@ def test_a_noisy_azimuth_is_measured_from_the_radial_velocities_and_named() -> N
     assert err['horizontal'] < 2.0 * noisy.diagnostics['sigma_horizontal_m'], err
 
 
+def test_turning_is_no_azimuth_noise() -> None:
+    """A car that crosses the lines of sight fast only while it turns (U-turns in view,
+    otherwise head-on: a forty-eighth probe read 1.1 deg from 0.3): the errors turning
+    adds to its velocity field grow with its speed across the lines of sight too, and are
+    not taken for azimuth noise; the same growth on a straight drive is."""
+    from radar_calib_ros.core.refine_noise import _azimuth_noise_deg
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    across = rng.uniform(0.0, 10.0, n)            # speed across the line of sight [m/s]
+    velocity = np.column_stack([np.full(n, 3.0), across, np.zeros(n)])
+    unit = np.tile([1.0, 0.0, 0.0], (n, 1))
+    noise = 0.1 + across * math.radians(1.5) * rng.normal(0.0, 1.0, n)
+    data = SimpleNamespace(index=np.arange(n), v_mps=np.zeros(n))
+    straight = {'rate': np.zeros(n), 'unit_v': unit, 'point_velocity': velocity,
+                'v_pred': noise}
+    assert 1.2 < _azimuth_noise_deg(straight, data) < 1.8  # type: ignore[arg-type]
+    # the fast crossings are the turning ones: nothing left to measure it from
+    turning = dict(straight, rate=np.where(across > 3.0, 0.4, 0.0))
+    assert _azimuth_noise_deg(turning, data) == 0.0  # type: ignore[arg-type]
+
+
 def test_a_noisy_elevation_is_measured_from_the_heights_and_named(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A radar with 3.5 deg of elevation noise (refine.elevation_sigma_deg left at 1.5):
@@ -1817,6 +1839,30 @@ def test_a_step_in_the_passes_own_yaws_is_a_turn_of_the_mount() -> None:
     data, j, r = _passes_with_yaws([-0.7, -0.6, 0.8, 0.75, 0.85, 0.8])
     assert refine_covariance.yaw_step(*refine_covariance._pass_yaws(
         j, r, data, 6), 3) is None  # type: ignore[arg-type]
+
+
+def test_a_step_that_a_wrong_tilt_makes_of_unlike_views_is_no_turn() -> None:
+    """Passes at the edge of the view mix the reference's roll into their yaw, head-on
+    passes hardly (a forty-eighth probe: 1.8 deg between them under a fit 3.4 deg off in
+    roll, 7.5 standard errors, a mount turn declared for a radar that had not moved).
+    With the reference's tilt uncertainty held, that is no turn; a real turn between
+    passes of like views still is."""
+    shift = np.array([[0.55, 0.12]] * 3 + [[0.05, -0.8]] * 4)
+    weight = 1.0 / np.radians([0.45, 0.3, 0.3, 0.22, 0.3, 0.23, 0.34]) ** 2
+    rng = np.random.default_rng(1)
+    tilt_error = np.radians([-3.4, 0.1])
+    yaw = shift @ tilt_error + rng.normal(0.0, 1.0, 7) / np.sqrt(weight)
+    sigma = np.radians([1.2, 0.3])
+    assert refine_covariance.yaw_step(yaw, weight, 3) == 3
+    assert refine_covariance.yaw_step(yaw, weight, 3, shift, sigma,
+                                      refine_covariance.YAW_STEP_TILT_Z) is None
+    # like views on both sides: the tilt moves them alike, a 1 deg turn stands out
+    alike = np.array([[0.2, -0.3]] * 7)
+    turned = alike @ tilt_error + np.radians(np.r_[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0]) \
+        + rng.normal(0.0, 1.0, 7) * np.radians(0.1)
+    tight = np.full(7, 1.0 / np.radians(0.1) ** 2)
+    assert refine_covariance.yaw_step(turned, tight, 3, alike, sigma,
+                                      refine_covariance.YAW_STEP_TILT_Z) == 3
 
 
 def test_the_vehicles_targets_inside_its_box_are_kept_from_a_track_it_shares(
