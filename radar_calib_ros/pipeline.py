@@ -398,6 +398,22 @@ def _beyond_search(shift_s: float, fitted_s: float, max_off: float) -> bool:
             and shift_s * fitted_s > 0.0 and abs(fitted_s) > max_off)
 
 
+#: Median interval [s] of the vehicle's own poses (before any spline between fixes) up to
+#: which they place it in time well enough that a clock offset fitted beyond the search is
+#: the clocks', not the poses'.
+_DENSE_POSE_INTERVAL_S = 0.2
+
+
+def _poses_dense(recording: Recording) -> bool:
+    """Whether the vehicle's recorded poses come at least every ``_DENSE_POSE_INTERVAL_S``
+    (the fixes' own interval where poses were splined between them)."""
+    fix_ms = recording.counters.get('fix_interval_ms', 0)
+    if recording.counters.get('poses_splined_between_fixes') and fix_ms:
+        return fix_ms / 1000.0 <= _DENSE_POSE_INTERVAL_S
+    stamps = recording.vehicle.stamps_ns
+    return stamps.size > 1 and float(np.median(np.diff(stamps))) * 1e-9 <= _DENSE_POSE_INTERVAL_S
+
+
 def _shift_note(shift_s: float, fitted_s: float | None) -> str | None:
     """What stage 6's need of a clock shift says, once the final fit has its own offset
     (None: not fitted). A shift the fit confirms is the clocks'; one it does not came from
@@ -443,9 +459,11 @@ _BEYOND_CLOCK_S = 1.0
 
 
 def _beyond_offset(tracks: tuple[SmoothedTrack, ...], recording: Recording,
-                   ground: GroundPlane, config: CalibConfig) -> float | None:
+                   ground: GroundPlane, config: CalibConfig, least_passes: int = 0
+                   ) -> float | None:
     """The offset nearest the given one, beyond ``sync.max_time_offset`` and within
-    ``_BEYOND_CLOCK_S``, at which stage 6 agrees and the vehicle is seen where that puts
+    ``_BEYOND_CLOCK_S``, at which stage 6 agrees (as one group of at least
+    ``least_passes`` passes, where that is given) and the vehicle is seen where that puts
     it, else None.
 
     Why: radar stamps 0.3-0.6 s late are ordinary where a driver stamps a frame when it is
@@ -461,7 +479,8 @@ def _beyond_offset(tracks: tuple[SmoothedTrack, ...], recording: Recording,
         for off in (-float(magnitude), float(magnitude)):
             selection = _seen_agreeing(tracks, recording, ground, replace(config, sync=replace(
                 config.sync, time_offset=config.sync.time_offset + off, max_time_offset=0.0)))
-            if selection is None:
+            if selection is None or (least_passes and (
+                    selection.rivals or selection.n_passes < least_passes)):
                 continue
             # the most agreeing tracks, as within the bound (``_best_shifted``): agreement
             # begins a few steps short of the clocks' offset
@@ -1243,9 +1262,27 @@ def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibC
         hyps, selection = _hypotheses(tracks, recording, ground, config, leaps=leaps)
     if selection.rivals:
         distance, passes = selection.rivals[0]
+        groups = (f'two groups of tracks each agree across passes ({selection.n_passes} and '
+                  f'{passes}) but place the radar {distance:.0f} m apart')
+        # A clock offset beyond the search shifts the passes driven one way and those
+        # driven the other apart along the road, each way agreeing within itself: a
+        # fiftieth probe's pose stamps 0.4-0.5 s off the radar's were taken for a convoy
+        # in 11 of 14 drives, and the user sent to drive again.
+        beyond = (_beyond_offset(tracks, recording, ground, config,
+                                 least_passes=selection.n_passes + passes)
+                  if leaps and config.sync.estimate_time_offset else None)
+        if beyond is not None:
+            raise InsufficientDataError('hypotheses', (
+                f'{groups}, and agree as one with the radar stamps shifted by {beyond:+.2f} '
+                f's, beyond sync.max_time_offset ({config.sync.max_time_offset:g} s): the '
+                'radar\'s and the vehicle\'s clocks are that far apart (the passes driven '
+                'one way and those driven the other part by twice the speed times the '
+                f'offset). Set sync.time_offset to {config.sync.time_offset + beyond:.2f} (or '
+                'sync.max_time_offset to '
+                f'{math.ceil(abs(beyond) / _CLOCK_STEP_S) * _CLOCK_STEP_S + 0.1:.2f}) and '
+                'calibrate again'))
         raise InsufficientDataError('hypotheses', (
-            f'two groups of tracks each agree across passes ({selection.n_passes} and '
-            f'{passes}) but place the radar {distance:.0f} m apart: another vehicle of the '
+            f'{groups}: another vehicle of the '
             'calibration vehicle\'s size kept pace with it through the view (a convoy, or a '
             'car alongside), and which group is the calibration vehicle the data cannot '
             'tell. Drive the passes with no vehicle of its size keeping pace with it (ahead, '
@@ -1676,6 +1713,17 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                     f'search ({selection.extrinsics.time_offset_s:+.2f} s), as they do when '
                     'the clocks are further apart, and the final fit found the rest. Set '
                     'sync.time_offset to '
+                    f'{config.sync.time_offset + current.time_offset_s:.2f} and calibrate '
+                    'again, so that every stage works at it.')
+            elif _poses_dense(recording):
+                # poses at 10 Hz and more place the vehicle in time to milliseconds: a
+                # fiftieth probe's 10 Hz fixes and 50 Hz Odometry, clocks 0.4 s apart, were
+                # told 'fixes below 5 Hz'
+                corrections.append(
+                    f'The fitted radar clock offset ({current.time_offset_s:+.3f} s on top of '
+                    f'sync.time_offset) lies beyond sync.max_time_offset ({max_off:g} s), with '
+                    'poses dense enough to place the vehicle in time: the radar\'s and the '
+                    'vehicle\'s clocks are most likely that far apart. Set sync.time_offset to '
                     f'{config.sync.time_offset + current.time_offset_s:.2f} and calibrate '
                     'again, so that every stage works at it.')
             else:

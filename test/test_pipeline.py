@@ -698,6 +698,7 @@ def test_a_rival_group_of_tracks_refuses_the_calibration(
     ambiguous = dataclasses.replace(_selection(4), pass_intervals_ns=passes,
                                     rivals=((22.0, 3),))
     monkeypatch.setattr(pipeline, '_ground_plane', lambda *a: (None, None))
+    monkeypatch.setattr(pipeline, '_beyond_offset', lambda *a, **k: None)
     monkeypatch.setattr(pipeline.track, 'track_clusters', lambda *a: [])
     monkeypatch.setattr(pipeline, '_hypotheses', lambda *a, **k: ([], ambiguous))
     with pytest.raises(InsufficientDataError,
@@ -708,6 +709,40 @@ def test_a_rival_group_of_tracks_refuses_the_calibration(
     monkeypatch.setattr(pipeline, '_hypotheses', lambda *a, **k: ([], clear))
     assert pipeline._stages_4_to_6(_NO_LAG, None, CalibConfig(),  # type: ignore[arg-type]
                                    pipeline._StageClock())[-1] is clear
+
+
+def test_two_groups_that_agree_as_one_on_another_clock_name_the_clock(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The passes driven one way and those driven the other, each agreeing within itself:
+    clocks 0.4-0.5 s apart part them as a look-alike keeping pace would (a fiftieth probe:
+    11 of 14 drives refused as a convoy, the user sent to drive again). Where they agree as
+    one group of all their passes on a clock beyond the search, the failure names it and
+    what to set; a look-alike's group, whose passes no clock joins to the vehicle's, is
+    still a convoy."""
+    passes = np.zeros((4, 2), np.int64)
+    ambiguous = dataclasses.replace(_selection(4), pass_intervals_ns=passes,
+                                    rivals=((9.0, 3),))
+    monkeypatch.setattr(pipeline, '_ground_plane', lambda *a: (None, None))
+    monkeypatch.setattr(pipeline.track, 'track_clusters', lambda *a: [])
+    monkeypatch.setattr(pipeline, '_hypotheses', lambda *a, **k: ([], ambiguous))
+    asked: list[int] = []
+
+    def beyond(*args: Any, least_passes: int = 0) -> float | None:
+        asked.append(least_passes)
+        return 0.45 if joined else None
+
+    monkeypatch.setattr(pipeline, '_beyond_offset', beyond)
+    joined = True
+    with pytest.raises(InsufficientDataError, match=r'9 m apart, and agree as one with the '
+                       r'radar stamps shifted by \+0.45 s.*Set sync.time_offset to 0.45'):
+        pipeline._stages_4_to_6(_NO_LAG, None, CalibConfig(),  # type: ignore[arg-type]
+                                pipeline._StageClock())
+    assert asked == [7]
+    joined = False
+    with pytest.raises(InsufficientDataError, match='convoy') as err:
+        pipeline._stages_4_to_6(_NO_LAG, None, CalibConfig(),  # type: ignore[arg-type]
+                                pipeline._StageClock())
+    assert 'sync.time_offset' not in str(err.value)
 
 
 def test_a_small_clock_step_is_rejoined_where_more_passes_then_agree(
@@ -1051,3 +1086,21 @@ def test_a_vehicle_that_moves_metres_between_frames_gets_a_wider_gate() -> None:
     fitted, _ = pipeline.fast_vehicle_config(
         drive(28.0, 10.0), config.replaced({'associate.gate_m': 8.0}))
     assert fitted.associate.gate_m == 8.0 and fitted.cluster.accumulate_frames == 2
+
+
+def test_a_clock_fitted_beyond_the_search_blames_sparse_poses_only_where_they_are() -> None:
+    """A clock offset fitted past sync.max_time_offset is the clocks' where the poses come
+    every 0.1 s (a fiftieth probe's 10 Hz fixes and 50 Hz Odometry were told 'fixes below
+    5 Hz'); 1 Hz fixes, splined between, may be what misplaced the vehicle in time."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    def rec(interval_s: float, **counters: int) -> Any:
+        stamps = np.arange(0, 60e9, interval_s * 1e9).astype(np.int64)
+        return SimpleNamespace(vehicle=SimpleNamespace(stamps_ns=stamps),
+                               counters=Counter(counters))
+
+    assert pipeline._poses_dense(rec(0.02)) and pipeline._poses_dense(rec(0.1))
+    assert not pipeline._poses_dense(rec(1.0))
+    assert not pipeline._poses_dense(rec(0.1, poses_splined_between_fixes=500,
+                                         fix_interval_ms=1000))
