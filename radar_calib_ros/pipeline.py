@@ -688,6 +688,11 @@ def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
     return notes + _outside_poses_notes(recording, config, name_jump=jump_ms is None)
 
 
+#: Least share of the radar frames before the vehicle's poses, and after them, for the
+#: frames outside to be a longer recording than the drive rather than a clock's fault.
+_OUTSIDE_POSES_SIDE_SHARE = 0.02
+
+
 def _outside_poses_notes(recording: Recording, config: CalibConfig,
                          name_jump: bool = True) -> list[str]:
     """A note when a good share of the radar frames lies outside the vehicle's pose stream
@@ -704,6 +709,16 @@ def _outside_poses_notes(recording: Recording, config: CalibConfig,
             f'({100 * outside.mean():.0f} %) lie outside the vehicle\'s pose stream in time '
             f'({_span(poses)}) and were not used')
     gaps = np.diff(stamps) * 1e-9
+    before, after = stamps < poses[0], stamps > poses[-1]
+    if (min(before.mean(), after.mean()) >= _OUTSIDE_POSES_SIDE_SHARE
+            and not (gaps.size and gaps.max() > _CLOCK_JUMP_S)):
+        # frames on both sides and no jump: a roadside recording that runs before and after
+        # the calibration drive, the ordinary case (a fiftieth probe's 28-46 min recordings
+        # were told to check the radar's time synchronisation, their clocks 1 ms apart)
+        return [note + f' ({100 * before.mean():.0f} % before the vehicle\'s first pose, '
+                f'{100 * after.mean():.0f} % after its last): the recording runs longer than '
+                'the vehicle\'s drive, which is as it should be where the radar records all '
+                'day.']
     if name_jump and gaps.size and gaps.max() > _CLOCK_JUMP_S:
         k = int(np.argmax(gaps))
         note += (f'; the radar\'s stamps jump by {gaps[k]:.1f} s after '

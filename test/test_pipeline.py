@@ -1104,3 +1104,27 @@ def test_a_clock_fitted_beyond_the_search_blames_sparse_poses_only_where_they_ar
     assert not pipeline._poses_dense(rec(1.0))
     assert not pipeline._poses_dense(rec(0.1, poses_splined_between_fixes=500,
                                          fix_interval_ms=1000))
+
+
+def test_frames_before_and_after_the_drive_are_a_longer_recording_not_a_clock() -> None:
+    """A roadside recording that runs before and after the vehicle's drive leaves frames
+    outside its poses on both sides: said as that (a fiftieth probe's 28 min recordings
+    were told to check the radar's time synchronisation); frames only after the poses end
+    still point at the clocks."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    def notes(first_s: float, last_s: float) -> list[str]:
+        rec = SimpleNamespace(
+            frame_stamps_ns=np.arange(0, int(100e9), int(0.1e9), dtype=np.int64),
+            vehicle=SimpleNamespace(stamps_ns=np.arange(int(first_s * 1e9), int(last_s * 1e9),
+                                                        int(0.02e9), dtype=np.int64)),
+            counters=Counter())
+        return pipeline._outside_poses_notes(rec, CalibConfig())  # type: ignore[arg-type]
+
+    inside = notes(30.0, 60.0)
+    assert len(inside) == 1 and 'runs longer than the vehicle' in inside[0]
+    assert 'synchronisation' not in inside[0] and '30 % before' in inside[0]
+    ends = notes(0.0, 40.0)
+    assert len(ends) == 1 and 'time synchronisation' in ends[0]
+    assert notes(0.0, 99.95) == []
