@@ -883,7 +883,16 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'projection on each target\'s line of sight. An object list\'s points '
                      'are where its tracker puts each object, not where the radar saw it: '
                      'record the radar\'s detections where it offers them.')
-    if not recording.has_elevation:
+    constant_mdeg = recording.counters.get('radar_elevation_constant_mdeg')
+    if constant_mdeg is not None and not recording.has_elevation:
+        notes.append(f'The radar reports every target at one elevation '
+                     f'({constant_mdeg / 1000:.2f} deg): it measures none (a 2-D radar, '
+                     'its driver writing a fixed value), and its targets were taken as in '
+                     'its own plane. Its roll and pitch cannot be measured from its targets '
+                     'and are reported level, with an uncertainty of degrees that also widens '
+                     'the position\'s; its altitude comes only from the radial velocities '
+                     '(decimetres). Measure the tilt at the mount.')
+    elif not recording.has_elevation:
         notes.append('The radar reports no elevation (z = 0 for every target: a 2-D radar): '
                      'its roll and pitch cannot be measured from its targets and are reported '
                      'level, with an uncertainty of degrees that also widens the position\'s; '
@@ -1691,7 +1700,9 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
         plane = refinement.diagnostics.get('plane_moved')
-        if plane is not None:
+        # a 2-D radar's plane is its own, level by construction: no stage erred there (a
+        # forty-ninth probe's were told their ground plane was not the road's)
+        if plane is not None and recording.has_elevation:
             lower = 'lower' if plane['vertical_m'] > 0 else 'higher'
             corrections.append(
                 f'The paper\'s stages had the radar\'s tilt {plane["tilt_deg"]:.1f} deg off and '

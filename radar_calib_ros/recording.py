@@ -221,6 +221,39 @@ class Recording:
         return float(self.frame_stamps_ns[-1] - self.frame_stamps_ns[0]) * 1e-9
 
 
+#: Elevations spread by less than this [deg] (99 % of the targets) are one elevation: no
+#: radar measures angles that well, and a driver that writes a fixed elevation (the
+#: mounting's nominal tilt, or a constant for 'none') reports none.
+_CONSTANT_ELEVATION_SPREAD_DEG = 0.01
+
+
+def _constant_elevation_deg(positions: F64) -> float | None:
+    """The elevation [deg] every target lies at, where (almost) all lie at one other than
+    0, else None (0 is a 2-D radar's own way to say it: ``Recording.has_elevation``).
+
+    Why: a forty-ninth probe's radar that wrote -4 deg for every target put roll and pitch
+    1.0-2.4 deg off at a reported 0.3-0.5 deg: its targets lay on a cone, taken for
+    measured heights.
+    """
+    rng = np.linalg.norm(positions, axis=1)
+    ok = rng > 0.1
+    if int(ok.sum()) < 100:
+        return None
+    elevation = np.degrees(np.arcsin(np.clip(positions[ok, 2] / rng[ok], -1.0, 1.0)))
+    low, median, high = np.percentile(elevation, [0.5, 50.0, 99.5])
+    if high - low >= _CONSTANT_ELEVATION_SPREAD_DEG or abs(median) < 1e-6:
+        return None
+    return float(median)
+
+
+def _in_sensor_plane(positions: F64) -> F64:
+    """Targets moved into the sensor's x-y plane at their range and azimuth (a 2-D radar's
+    targets: ``Recording.has_elevation``)."""
+    rng = np.linalg.norm(positions, axis=1)
+    azimuth = np.arctan2(positions[:, 1], positions[:, 0])
+    return np.column_stack([rng * np.cos(azimuth), rng * np.sin(azimuth), np.zeros_like(rng)])
+
+
 def _narrowed(values: F64) -> NDArray[np.floating[Any]]:
     """``values`` as float32 where every one of them is a float32, else unchanged."""
     with np.errstate(over='ignore'):  # beyond float32's range: inf, unequal, kept wide
@@ -519,6 +552,13 @@ class RecordingBuilder:
         else:
             positions, velocities = np.zeros((0, 3)), np.zeros(0)
         velocities *= self._config.radar.velocity_sign
+        elevation_deg = _constant_elevation_deg(positions)
+        if elevation_deg is not None:
+            positions = _in_sensor_plane(positions)
+            self.counters['radar_elevation_constant_mdeg'] = int(round(1000 * elevation_deg))
+            _LOG.warning('every radar target lies at one elevation (%.2f deg): the radar '
+                         'measures none, and its targets are taken as a 2-D radar\'s',
+                         elevation_deg)
         # Some drivers publish one scan as several messages (sectors, or chunks of a long
         # target list) under one header stamp. They are one frame: taken apart, each
         # shows a part of the vehicle and the vehicle seems missed in most frames (an

@@ -2073,3 +2073,37 @@ def test_a_slower_receivers_positions_sent_again_are_left_out_not_smoothed() -> 
     standing[1000:1200] = standing[1000]
     c = _fixes_stamped_at(epoch, standing).build().counters
     assert 'fixes_stale_dropped' not in c
+
+
+def test_targets_all_at_one_elevation_are_a_2d_radars() -> None:
+    """A driver writing one elevation for every target (-4 deg: a forty-ninth probe's roll
+    and pitch came out 1.0-2.4 deg off at a reported 0.3-0.5): it measures none, and its
+    targets are taken into its own plane at their range and azimuth, as a 2-D radar's, and
+    named; measured elevations, even quantised, are left alone."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    rng = np.random.default_rng(0)
+    r = rng.uniform(10.0, 80.0, 400)
+    az = np.radians(rng.uniform(-50.0, 50.0, 400))
+
+    def built(elevation_deg: np.ndarray) -> recording.Recording:
+        el = np.radians(elevation_deg)
+        positions = np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az),
+                                     r * np.sin(el)])
+        builder = circle_builder()[0]
+        for k in range(4):
+            builder.add_radar_frame(RadarFrame(T0 + int(k * 1e8), positions[k::4],
+                                               np.zeros(100)))
+        return builder.build()
+
+    fixed = built(np.full(400, -4.0))
+    assert fixed.counters['radar_elevation_constant_mdeg'] == -4000
+    assert not fixed.has_elevation
+    # (circle_builder's own frame adds one target 5 m ahead)
+    np.testing.assert_allclose(np.sort(np.linalg.norm(fixed.targets.positions_m, axis=1)),
+                               np.sort(np.r_[r, 5.0]), atol=1e-9)
+    notes = [n for n in _data_notes(fixed, []) if 'one elevation (-4.00 deg)' in n]
+    assert len(notes) == 1
+    quantised = built(np.round(rng.normal(-4.0, 1.5, 400) / 3.0) * 3.0)
+    assert 'radar_elevation_constant_mdeg' not in quantised.counters
+    assert quantised.has_elevation
