@@ -370,13 +370,21 @@ class _SplitReader(_JazzyDecoding):
     needs ROS and cannot read the cut file either: the data already written is the
     user's."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, damaged: str | None = None) -> None:
         super().__init__()
         self._parts: list[Any] = []
         files = _storage_files(path)
-        _LOG.warning('%r has no metadata.yaml (a split recording interrupted before it was '
-                     'written?): reading its %d storage files one by one', str(path),
-                     len(files))
+        if damaged is None:
+            _LOG.warning('%r has no metadata.yaml (a split recording interrupted before it '
+                         'was written?): reading its %d storage files one by one', str(path),
+                         len(files))
+        else:
+            # A recorder killed mid-file, or a file lost in copying, made the whole split
+            # recording unreadable through its metadata.yaml (a fiftieth probe's 11 whole
+            # files of 12 refused for the last one cut short): the files are read as
+            # without it, the damaged ones left out and named.
+            _LOG.warning('%r cannot be read as its metadata.yaml describes it (%s): reading '
+                         'its %d storage files one by one', str(path), damaged, len(files))
         try:
             for file in files:
                 part = self._open_part(file)
@@ -396,6 +404,11 @@ class _SplitReader(_JazzyDecoding):
         try:
             return _PlainReader(file)
         except (OSError, *_STORAGE_ERRORS) as err:
+            if 'malformed' in _reason(err).lower() or 'not a database' in _reason(err).lower():
+                # a sqlite3 file cut short: its pages are not readable on their own
+                _LOG.warning('%s cannot be read (%s; cut short?): left out', file.name,
+                             _reason(err))
+                return None
             if 'end magic' not in _reason(err).lower():
                 raise BagReadError(f'reading {str(file)!r}: {_reason(err)}') from err
         cut = _cut_mcap(file)
@@ -464,6 +477,11 @@ def _open_reader(path: Path) -> Iterator[_BagReader]:
     except (OSError, *_STORAGE_ERRORS) as err:
         reason = _reason(err)
         cut = _cut_mcap(path) if 'end magic' in reason.lower() else None
+        if cut is None and path.is_dir() and len(_storage_files(path)) > 1:
+            try:
+                cut = _SplitReader(path, damaged=reason)
+            except (BagReadError, OSError, *_STORAGE_ERRORS):
+                cut = None
         if cut is None:
             if 'end magic' in reason.lower():
                 reason += (' (an MCAP file cut short: the recording was interrupted? `mcap '

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 import pytest
 
 from radar_calib_ros.config import CalibConfig
@@ -450,8 +451,37 @@ def test_a_split_recording_without_metadata_reads_file_by_file(
     assert rec.counters['radar_frames'] == full.counters['radar_frames'] == 60
     np.testing.assert_array_equal(rec.frame_stamps_ns, full.frame_stamps_ns)
     assert radar_topics(bag) == ['/radar/points']
+    # with the metadata.yaml that lists them, as the recorder writes it when it ends
+    metadata = yaml.safe_load((tmp_path / 'whole' / 'metadata.yaml').read_text())
+    info = metadata['rosbag2_bagfile_information']
+    names = [f'split_{k}{_storage_file(bag).suffix}' for k in range(11)]
+    info['relative_file_paths'] = names
+    info['files'] = [dict(info['files'][0], path=name) for name in names]
+    (bag / 'metadata.yaml').write_text(yaml.safe_dump(metadata))
+    np.testing.assert_array_equal(read_recording(bag, CalibConfig()).frame_stamps_ns,
+                                  full.frame_stamps_ns)
+    # ... and its last file lost (a copy that stopped short), or cut: refused as a whole
+    # before (a fiftieth probe's 11 whole files of 12), the rest is read and the loss named
+    lost = bag / names[-1]
+    kept = lost.read_bytes()
+    lost.unlink()
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+        rec = read_recording(bag, CalibConfig())
+    assert 'cannot be read as its metadata.yaml describes it' in caplog.text
+    assert 0 < rec.counters['radar_frames'] < full.counters['radar_frames']
+    lost.write_bytes(kept[:len(kept) // 2])
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger='radar_calib_ros'):
+        rec = read_recording(bag, CalibConfig())
+    assert 'cannot be read as its metadata.yaml describes it' in caplog.text
+    assert 0 < rec.counters['radar_frames'] <= full.counters['radar_frames']
+    (bag / 'metadata.yaml').unlink()
     if storage != 'mcap':
+        # a sqlite3 file cut short cannot be read in part: left out, named
+        assert 'split_10.db3 cannot be read' in caplog.text
         return
+    lost.write_bytes(kept)
     last = bag / 'split_10.mcap'
     whole = last.read_bytes()
     last.write_bytes(whole[:len(whole) // 50])    # cut before its first whole message
