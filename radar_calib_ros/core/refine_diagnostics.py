@@ -164,8 +164,10 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     p_bear = (np.arctan2(rel[:, 1], rel[:, 0]) - bore + np.pi) % (2 * np.pi) - np.pi
     # where a drive is most useful: close enough for the bearing to change across the car,
     # far enough to see the whole car
+    # within the bearings its targets were seen at: a forty-ninth probe's radar seeing to
+    # +-60.7 deg was sent 62-63 deg right of its boresight
     inside = ((p_rng <= min(r_max, 60.0)) & (p_rng >= max(10.0, nearest_m))
-              & (p_bear >= b_lo - 0.1) & (p_bear <= b_hi + 0.1))
+              & (p_bear >= b_lo) & (p_bear <= b_hi))
     # A heading met mid-turn is no lane's: a junction's turns pass through every diagonal,
     # and a twenty-fourth probe with only east-west and north-south roads was asked to drive
     # 'south-westbound ... on a lane already driven'. Lanes are where the vehicle drove
