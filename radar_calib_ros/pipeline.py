@@ -761,6 +761,30 @@ _IMPLAUSIBLE_RTK_SIGMA_M = 0.5
 _HEADING_OFFSET_NOTE_CDEG = 30
 
 
+#: A stretch [s] with no radar frame and no vehicle pose at once, inside the recording,
+#: from which it is named.
+_HOLE_S = 20.0
+
+
+def _recording_hole_note(recording: Recording) -> str | None:
+    """A note on the longest stretch in which neither the radar nor the vehicle's poses
+    have anything, where it is ``_HOLE_S`` or more: a recorder stopped and started again
+    (a fiftieth probe's 90 s went unsaid; a pass lost in it is then no mystery)."""
+    frames = recording.frame_stamps_ns
+    poses = recording.vehicle.stamps_ns
+    if frames.size < 2 or poses.size < 2:
+        return None
+    both = np.union1d(frames, poses[(poses > frames[0]) & (poses < frames[-1])])
+    gaps = np.diff(both) * 1e-9
+    k = int(np.argmax(gaps))
+    if gaps[k] < _HOLE_S:
+        return None
+    start = (both[k] - frames[0]) * 1e-9
+    return (f'Neither the radar nor the vehicle\'s poses have anything for {gaps[k]:.0f} s, '
+            f'from {start:.0f} s to {start + gaps[k]:.0f} s into the recording (a recorder '
+            'stopped and started again?): a pass driven then is not in the data.')
+
+
 def _data_notes(recording: Recording, corrections: list[str],
                 fitted_offset_s: float | None = None) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
@@ -772,6 +796,9 @@ def _data_notes(recording: Recording, corrections: list[str],
     zone = zone_note(recording.frame)
     if zone is not None:
         notes.append(zone)
+    hole = _recording_hole_note(recording)
+    if hole is not None:
+        notes.append(hole)
     turns = recording.counters.get('mount_turns', 0)
     if turns:
         words = hypotheses.turn_words(recording.counters.get('mount_turn_cdeg', 0) / 100,

@@ -1128,3 +1128,21 @@ def test_frames_before_and_after_the_drive_are_a_longer_recording_not_a_clock() 
     ends = notes(0.0, 40.0)
     assert len(ends) == 1 and 'time synchronisation' in ends[0]
     assert notes(0.0, 99.95) == []
+
+
+def test_a_hole_in_every_stream_is_named() -> None:
+    """90 s without a radar frame or a pose (a recorder restarted: a fiftieth probe lost a
+    pass to it without a word); a hole in one stream alone is not this note's."""
+    from types import SimpleNamespace
+
+    def note(frame_s: np.ndarray, pose_s: np.ndarray) -> str | None:
+        rec = SimpleNamespace(frame_stamps_ns=(frame_s * 1e9).astype(np.int64),
+                              vehicle=SimpleNamespace(stamps_ns=(pose_s * 1e9).astype(np.int64)))
+        return pipeline._recording_hole_note(rec)  # type: ignore[arg-type]
+
+    t = np.arange(0.0, 400.0, 0.05)
+    hole = (t < 300.0) | (t > 390.0)
+    said = note(t[hole], t[hole])
+    assert said is not None and 'for 90 s, from 300 s to 390 s' in said
+    assert note(t, t) is None
+    assert note(t[hole], t) is None and note(t, t[hole]) is None
