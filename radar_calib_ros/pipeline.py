@@ -18,7 +18,8 @@ from threadpoolctl import threadpool_limits
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import associate, cluster, ground_plane, hypotheses, moving, polygon
-from radar_calib_ros.core import quality, refine, track, uncertainty, velocity_folding
+from radar_calib_ros.core import quality, refine, refine_noise, track, uncertainty
+from radar_calib_ros.core import velocity_folding
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.io.geo import zone_note
 from radar_calib_ros.recording import Recording, interpolate_poses
@@ -402,6 +403,28 @@ def _beyond_search(shift_s: float, fitted_s: float, max_off: float) -> bool:
 #: which they place it in time well enough that a clock offset fitted beyond the search is
 #: the clocks', not the poses'.
 _DENSE_POSE_INTERVAL_S = 0.2
+
+
+def _azimuth_corrected(recording: Recording, bias: refine_noise.AzimuthBias) -> Recording:
+    """The recording with every target turned about the radar's z axis by the azimuth
+    error ``bias`` shows, back to where the radar should have put it."""
+    p = recording.targets.positions_m
+    turn = -bias.at(np.arctan2(p[:, 1], p[:, 0]))
+    c, s = np.cos(turn), np.sin(turn)
+    turned = np.column_stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1], p[:, 2]])
+    return replace(recording, targets=replace(recording.targets, positions_m=turned))
+
+
+def _azimuth_bias_note(bias: refine_noise.AzimuthBias) -> str:
+    """What the radial velocities showed of the radar's azimuths, and what was done."""
+    edge = math.degrees(bias.half_width_rad)
+    half = math.degrees(float(bias.at(np.array([0.5 * bias.half_width_rad]))[0]))
+    return (f'The radial velocities show the radar\'s azimuths off by {bias.edge_deg:+.2f} deg '
+            f'(+-{bias.edge_sigma_deg:.2f}) at {edge:.0f} deg from its boresight and '
+            f'{half:+.2f} at {edge / 2:.0f}, growing towards the edges of its view (an antenna '
+            'array\'s angle calibration?); left in, such an error moves the position along '
+            'the boresight by decimetres to metres. The targets\' azimuths were corrected by '
+            'it and the radar fitted again. Have the radar\'s angle calibration checked.')
 
 
 def _poses_dense(recording: Recording) -> bool:
@@ -1724,6 +1747,16 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                     refinement = refine.refine_extrinsics(
                         polygon.bracketed_start(closest, current), recording, tracked,
                         selection, config, ground_normal=ground.normal)
+            bias = refinement.diagnostics.get('azimuth_bias')
+            if refine_noise.significant_azimuth_bias(bias):
+                corrected = _azimuth_corrected(recording, bias)
+                with suppress(InsufficientDataError):
+                    refinement = refine.refine_extrinsics(
+                        refinement.extrinsics, corrected, tracked, selection, config,
+                        ground_normal=ground.normal)
+                    recording = corrected
+                    corrections.append(_azimuth_bias_note(bias))
+                    _LOG.warning('%s', corrections[-1])
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
         plane = refinement.diagnostics.get('plane_moved')

@@ -1146,3 +1146,23 @@ def test_a_hole_in_every_stream_is_named() -> None:
     assert said is not None and 'for 90 s, from 300 s to 390 s' in said
     assert note(t, t) is None
     assert note(t[hole], t) is None and note(t, t[hole]) is None
+
+
+def test_an_azimuth_error_is_taken_off_every_target() -> None:
+    """The correction turns each target about the radar's z axis by the error at its own
+    azimuth, back to where the radar should have put it; range and height stay."""
+    from radar_calib_ros.core.refine_noise import AzimuthBias
+
+    recording = _recording(0.1)
+    p = recording.targets.positions_m.copy()
+    p[:, 2] = -3.0
+    recording = dataclasses.replace(recording, targets=dataclasses.replace(
+        recording.targets, positions_m=p))
+    bias = AzimuthBias(math.radians(0.5), math.radians(1.0), math.radians(50.0), 1.5, 0.02)
+    corrected = pipeline._azimuth_corrected(recording, bias).targets.positions_m
+    before = np.arctan2(p[:, 1], p[:, 0])
+    after = np.arctan2(corrected[:, 1], corrected[:, 0])
+    np.testing.assert_allclose(after, before - bias.at(before), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), np.linalg.norm(p, axis=1))
+    np.testing.assert_array_equal(corrected[:, 2], p[:, 2])
+    assert 'off by +1.50 deg (+-0.02) at 50 deg' in pipeline._azimuth_bias_note(bias)

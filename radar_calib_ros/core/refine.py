@@ -99,8 +99,9 @@ from radar_calib_ros.core.refine_model import (
     _START_SIGMA_M, ClockDrift, _anchor, _change, _Fit, _Model, _parameter_sigma, _priors,
     _road_up, _robust, _rotation_between, _Selected, _solve, _vehicle_poses, n_range_terms,
     range_columns, reflection_height_prior)
-from radar_calib_ros.core.refine_noise import (_azimuth_noise_deg, _elevation_noise_deg,
-                                               _noisy_azimuth, _noisy_elevation, _scatter)
+from radar_calib_ros.core.refine_noise import (_azimuth_bias, _azimuth_noise_deg,
+                                               _elevation_noise_deg, _noisy_azimuth,
+                                               _noisy_elevation, _scatter)
 from radar_calib_ros.core.refine_targets import (_MIN_PASS_TARGETS, _MIN_TARGETS, _corridor,
                                                  _gate, _in_passes, _occluded, _select,
                                                  _track_sizes, with_static_targets)
@@ -882,6 +883,10 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             'its scans with a synchronised host clock.', *diagnostics['advice']]
     # the vehicle's targets near its box the last round left out as hidden (``_occluded``)
     diagnostics['hidden_targets'] = hidden_targets
+    if cfg.azimuth_scale_sigma == 0.0:
+        # (where the user fits a scale of the azimuths, that is theirs to judge)
+        diagnostics['azimuth_bias'] = _azimuth_bias(model.geometry(x_hat, jacobian=False),
+                                                    data)
     if recording.has_elevation and ground_normal is not None:
         diagnostics['tilt_from_plane_deg'] = math.degrees(float(np.linalg.norm(
             Rotation.from_matrix(tilt_anchor @ est.rotation.T).as_rotvec()[:2])))

@@ -149,7 +149,7 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
                crawl: bool = False, config: CalibConfig | None = None,
                grade: float = 0.0, steady: bool = False,
                azimuth_noise_deg: float = 0.3, elevation_noise_deg: float = 1.5,
-               perspective_m: float = 0.0) -> Scene:
+               perspective_m: float = 0.0, azimuth_bias_deg: float = 0.0) -> Scene:
     """Build a scene; ``initial_error`` = (translation [m], yaw [deg], clock offset [s]);
     ``grade``: the road climbs this much per metre along the boresight, and the car is
     pitched with it (the fixes then declare RTK's 2-3 cm, which the grade is measured by);
@@ -157,7 +157,9 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
     ``azimuth_noise_deg``, ``elevation_noise_deg``: the radar's angle noise (1 sigma)
     when ``noise``; ``perspective_m``: the targets' mean moves along the car and across it
     by this much times (20 m / range of the centre), more at oblique aspects (what a car
-    spanning more of the view shows nearer the radar)."""
+    spanning more of the view shows nearer the radar); ``azimuth_bias_deg``: the radar's
+    azimuths off by this much at +-50 deg, as t|t| of t = azimuth / 50 deg (an antenna
+    array's angle calibration)."""
     rng = np.random.default_rng(seed)
     cfg = config or CalibConfig()
     truth = radar_truth()
@@ -252,6 +254,8 @@ def make_scene(seed: int, *, model: str = 'interior', geometry: str = 'junction'
         e = np.arcsin(sensor[:, 2] / r)
         r = r + rng.normal(0, 0.15, r.size)
         a = a + rng.normal(0, np.radians(azimuth_noise_deg), r.size)
+        t = a / np.radians(50.0)
+        a = a + np.radians(azimuth_bias_deg) * t * np.abs(t)
         e = e + rng.normal(0, np.radians(elevation_noise_deg), r.size)
         sensor = np.column_stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a),
                                   r * np.sin(e)])

@@ -1459,6 +1459,25 @@ def test_turning_is_no_azimuth_noise() -> None:
     assert _azimuth_noise_deg(turning, data) == 0.0  # type: ignore[arg-type]
 
 
+def test_an_azimuth_error_growing_to_the_edges_is_measured_from_the_radial_velocities(
+        ) -> None:
+    """A radar whose azimuths are off by 1.5 deg at +-50 deg (an antenna array's angle
+    calibration; a forty-ninth probe's moved 0.6-2.0 m along the boresight, unsaid): the
+    radial velocities show the error's shape, which no rotation absorbs; an unbiased
+    radar's shows none."""
+    from radar_calib_ros.core.refine_noise import significant_azimuth_bias
+
+    plain = _run(make_scene(3, model='interior', geometry='diverse'))
+    assert not significant_azimuth_bias(plain.diagnostics['azimuth_bias'])
+    scene = make_scene(3, model='interior', geometry='diverse', azimuth_bias_deg=1.5)
+    biased = _run(scene).diagnostics['azimuth_bias']
+    assert significant_azimuth_bias(biased)
+    # at 50 deg: 1.5 deg
+    assert float(np.degrees(biased.at(np.radians([50.0]))[0])) == pytest.approx(1.5, abs=0.3)
+    assert float(np.degrees(biased.at(np.radians([-50.0]))[0])) == pytest.approx(-1.5,
+                                                                                 abs=0.3)
+
+
 def test_a_noisy_elevation_is_measured_from_the_heights_and_named(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A radar with 3.5 deg of elevation noise (refine.elevation_sigma_deg left at 1.5):
