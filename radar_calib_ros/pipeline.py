@@ -405,7 +405,7 @@ def _beyond_search(shift_s: float, fitted_s: float, max_off: float) -> bool:
 _DENSE_POSE_INTERVAL_S = 0.2
 
 
-def _azimuth_corrected(recording: Recording, bias: refine_noise.AzimuthBias) -> Recording:
+def azimuth_corrected(recording: Recording, bias: refine_noise.AzimuthBias) -> Recording:
     """The recording with every target turned about the radar's z axis by the azimuth
     error ``bias`` shows, back to where the radar should have put it."""
     p = recording.targets.positions_m
@@ -1749,12 +1749,13 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                         selection, config, ground_normal=ground.normal)
             bias = refinement.diagnostics.get('azimuth_bias')
             if refine_noise.significant_azimuth_bias(bias):
-                corrected = _azimuth_corrected(recording, bias)
+                corrected = azimuth_corrected(recording, bias)
                 with suppress(InsufficientDataError):
                     refinement = refine.refine_extrinsics(
                         refinement.extrinsics, corrected, tracked, selection, config,
                         ground_normal=ground.normal)
                     recording = corrected
+                    refinement.diagnostics['azimuth_bias_corrected'] = bias
                     corrections.append(_azimuth_bias_note(bias))
                     _LOG.warning('%s', corrections[-1])
         current = refinement.extrinsics

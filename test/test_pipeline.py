@@ -1159,10 +1159,31 @@ def test_an_azimuth_error_is_taken_off_every_target() -> None:
     recording = dataclasses.replace(recording, targets=dataclasses.replace(
         recording.targets, positions_m=p))
     bias = AzimuthBias(math.radians(0.5), math.radians(1.0), math.radians(50.0), 1.5, 0.02)
-    corrected = pipeline._azimuth_corrected(recording, bias).targets.positions_m
+    corrected = pipeline.azimuth_corrected(recording, bias).targets.positions_m
     before = np.arctan2(p[:, 1], p[:, 0])
     after = np.arctan2(corrected[:, 1], corrected[:, 0])
     np.testing.assert_allclose(after, before - bias.at(before), atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), np.linalg.norm(p, axis=1))
     np.testing.assert_array_equal(corrected[:, 2], p[:, 2])
     assert 'off by +1.50 deg (+-0.02) at 50 deg' in pipeline._azimuth_bias_note(bias)
+
+
+def test_evaluate_takes_the_calibrations_azimuth_error_off_its_recording_too() -> None:
+    """A calibration made on corrected azimuths holds for them: evaluate takes the error
+    the result names (quality.azimuth_bias) off the recording it judges it on (judged on
+    the raw azimuths, a radar 0.66 deg off at its edges read 'doubtful, 69 cm along the
+    boresight' on its own recording); a result without one, or a malformed one, leaves
+    the recording as it is."""
+    from radar_calib_ros.core.refine_noise import AzimuthBias
+    from radar_calib_ros.evaluate import _azimuths_as_calibrated
+
+    recording = _recording(0.1)
+    named = {'quality': {'azimuth_bias': {'linear_deg': 0.157, 'cubic_deg': 0.499,
+                                          'half_width_deg': 56.9, 'edge_deg': 0.656}}}
+    expected = pipeline.azimuth_corrected(recording, AzimuthBias(
+        math.radians(0.157), math.radians(0.499), math.radians(56.9), 0.656, math.nan))
+    np.testing.assert_array_equal(_azimuths_as_calibrated(recording, named).targets.positions_m,
+                                  expected.targets.positions_m)
+    assert _azimuths_as_calibrated(recording, {'quality': {}}) is recording
+    assert _azimuths_as_calibrated(recording, {'quality': {'azimuth_bias': {
+        'linear_deg': 'x'}}}) is recording

@@ -183,6 +183,17 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
         if 'elevation_noise_deg' in refinement.diagnostics:
             extra['elevation_noise_deg'] = round(
                 float(refinement.diagnostics['elevation_noise_deg']), 2)
+        bias = refinement.diagnostics.get('azimuth_bias_corrected')
+        if bias is not None:
+            # what was taken off the targets' azimuths, for whoever applies the result to
+            # this radar's raw targets: linear_deg * t + cubic_deg * t**3, t = azimuth /
+            # half_width_deg
+            extra['azimuth_bias'] = {
+                'linear_deg': round(math.degrees(bias.linear_rad), 3),
+                'cubic_deg': round(math.degrees(bias.cubic_rad), 3),
+                'half_width_deg': round(math.degrees(bias.half_width_rad), 1),
+                'edge_deg': round(bias.edge_deg, 3),
+                'edge_sigma_deg': round(bias.edge_sigma_deg, 3)}
         if 'azimuth_scale' in refinement.diagnostics:
             extra['azimuth_scale_percent'] = round(
                 100.0 * float(refinement.diagnostics['azimuth_scale']), 2)
