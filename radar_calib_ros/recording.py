@@ -235,8 +235,9 @@ def _constant_elevation_deg(positions: F64) -> float | None:
     1.0-2.4 deg off at a reported 0.3-0.5 deg: its targets lay on a cone, taken for
     measured heights.
     """
-    rng = np.linalg.norm(positions, axis=1)
-    ok = rng > 0.1
+    with np.errstate(over='ignore', invalid='ignore'):   # a corrupt cloud's huge values
+        rng = np.linalg.norm(positions, axis=1)
+    ok = np.isfinite(rng) & (rng > 0.1)
     if int(ok.sum()) < 100:
         return None
     elevation = np.degrees(np.arcsin(np.clip(positions[ok, 2] / rng[ok], -1.0, 1.0)))
