@@ -39,7 +39,7 @@ from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.recording import Recording
 from radar_calib_ros.result import utm_to_extrinsics
 from radar_calib_ros.core.hypotheses import mount_turn_text
-from radar_calib_ros.core.refine_noise import AzimuthBias
+from radar_calib_ros.core.refine_noise import AzimuthBias, significant_azimuth_bias
 from radar_calib_ros.types import (I64, Extrinsics, HypothesisSelection, MountTurn,
                                    TrackedTargets)
 
@@ -421,7 +421,28 @@ def check_agreement(evaluation: Evaluation, config: CalibConfig) -> Agreement:
             f'{moved[0].lower()}{moved[1:]}: a calibration holds for one mount at most, '
             'calibrate again on a recording made after the move' + (
                 f' (the fit over the whole recording: {named})' if named else '')))
-    return agreement
+    return _unseen_azimuth_bias(agreement, diagnostics, evaluation.calibration)
+
+
+def _unseen_azimuth_bias(agreement: Agreement, diagnostics: Mapping[str, Any],
+                         calibration: Mapping[str, Any]) -> Agreement:
+    """A verdict that holds made doubtful where this recording's radial velocities show
+    the radar's azimuths off towards the edges of its view and the calibration took no
+    such error off (one made before that check, or elsewhere): a calibration fitted on the
+    raw azimuths agrees with a refit on them, both moved along the boresight alike (a
+    forty-ninth probe's 2 m-off result 'held' on its second drive)."""
+    bias = diagnostics.get('azimuth_bias')
+    if (agreement.verdict != 'holds' or not significant_azimuth_bias(bias)
+            or (calibration.get('quality') or {}).get('azimuth_bias')):
+        return agreement
+    assert isinstance(bias, AzimuthBias)
+    return replace(agreement, verdict='doubtful', reason=(
+        f'{agreement.reason}; but the radial velocities show the radar\'s azimuths off by '
+        f'{bias.edge_deg:+.2f} deg (+-{bias.edge_sigma_deg:.2f}) at '
+        f'{math.degrees(bias.half_width_rad):.0f} deg from its boresight, growing towards '
+        'the edges, and the calibration took no such error off: both it and this fit stand '
+        'moved along the boresight by it (decimetres to metres). Calibrate again: '
+        'calibrate takes it off and records it (quality.azimuth_bias)'))
 
 
 def _checks_rotation(agreement: Agreement) -> bool:

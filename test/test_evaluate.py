@@ -552,3 +552,21 @@ def test_evaluate_tracks_a_fast_vehicle_as_calibrate_does(drive: Any,
                                      agreement=False)
     assert seen == [5.0]
     assert ev.notes[-1] == 'The vehicle drove 2.8 m between frames'
+
+
+def test_an_azimuth_error_the_calibration_did_not_take_off_makes_it_doubtful() -> None:
+    """A calibration made on raw azimuths that are off towards the edges agrees with a refit
+    on them, both moved along the boresight alike (a forty-ninth probe's 2 m-off result
+    'held'): where the refit's radial velocities show the error and the result names none,
+    the verdict is doubtful; a result that took it off, or no such error, leaves it."""
+    from radar_calib_ros.core.refine_noise import AzimuthBias
+
+    held = evaluate.Agreement('holds', 'agrees')
+    shown = {'azimuth_bias': AzimuthBias(0.01, 0.02, math.radians(58.0), 1.99, 0.04)}
+    doubt = evaluate._unseen_azimuth_bias(held, shown, {'quality': {}})
+    assert doubt.verdict == 'doubtful' and 'azimuths off by +1.99 deg' in doubt.reason
+    taken = {'quality': {'azimuth_bias': {'linear_deg': 0.5}}}
+    assert evaluate._unseen_azimuth_bias(held, shown, taken) is held
+    faint = {'azimuth_bias': AzimuthBias(0.0, 0.001, math.radians(58.0), 0.06, 0.02)}
+    assert evaluate._unseen_azimuth_bias(held, faint, {'quality': {}}) is held
+    assert evaluate._unseen_azimuth_bias(held, {}, {'quality': {}}) is held
