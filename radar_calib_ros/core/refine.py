@@ -883,8 +883,11 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             'its scans with a synchronised host clock.', *diagnostics['advice']]
     # the vehicle's targets near its box the last round left out as hidden (``_occluded``)
     diagnostics['hidden_targets'] = hidden_targets
-    if cfg.azimuth_scale_sigma == 0.0:
-        # (where the user fits a scale of the azimuths, that is theirs to judge)
+    if cfg.azimuth_scale_sigma == 0.0 and recording.has_elevation:
+        # (where the user fits a scale of the azimuths, that is theirs to judge; a 2-D
+        # radar's unknown pitch turns its lines of sight by the pitch times the sine of
+        # their azimuth, an odd error of the same shape: a forty-ninth probe's, pitched 7.8
+        # deg and held level, read -0.44 deg at the edges)
         diagnostics['azimuth_bias'] = _azimuth_bias(model.geometry(x_hat, jacobian=False),
                                                     data)
     if recording.has_elevation and ground_normal is not None:

@@ -550,6 +550,8 @@ def test_a_2d_radar_reports_roll_pitch_as_unmeasured_and_its_height_from_velocit
     assert np.degrees(sigma[2]) < 1.0  # the yaw is still measured
     height_error = abs(ref.extrinsics.translation_m[2] - scene.truth.translation_m[2])
     assert height_error < 2.0 * sigma[5]
+    # its unknown tilt turns the lines of sight as an azimuth error would: not measured
+    assert 'azimuth_bias' not in ref.diagnostics
 
 
 def test_tilt_term_widens_roll_and_pitch_only() -> None:
