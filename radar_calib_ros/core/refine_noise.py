@@ -103,7 +103,17 @@ def _azimuth_bias(g: dict[str, F64], data: _Selected) -> AzimuthBias | None:
     if half_width < math.radians(10.0):
         return None     # a narrow beam: nothing to grow over
     t = azimuth / half_width
-    design = np.column_stack([w_perp, w_perp * t, w_perp * t ** 3])
+    # A roll or pitch the fit has wrong turns the lines of sight too, pitch by its angle
+    # times the sine of the azimuth (and the dip): fitted alongside, as the residual yaw is,
+    # so that a tilt error is not read as one of the azimuths.
+    sensor = data.sensor_m[straight]
+    unit_s = sensor / np.maximum(np.linalg.norm(sensor, axis=1), 1e-9)[:, None]
+    zeros = np.zeros(unit_s.shape[0])
+    rotation = np.asarray(g['rot'], np.float64)
+    roll = np.column_stack([zeros, -unit_s[:, 2], unit_s[:, 1]]) @ rotation.T
+    pitch = np.column_stack([unit_s[:, 2], zeros, -unit_s[:, 0]]) @ rotation.T
+    design = np.column_stack([w_perp, w_perp * t, w_perp * t ** 3,
+                              np.sum(velocity * roll, axis=1), np.sum(velocity * pitch, axis=1)])
     keep = np.ones(residual.size, bool)
     spread = 0.0
     for _ in range(3):
@@ -112,7 +122,7 @@ def _azimuth_bias(g: dict[str, F64], data: _Selected) -> AzimuthBias | None:
         spread = max(1.4826 * float(np.median(np.abs(error[keep]))), 1e-3)
         keep = np.abs(error) <= 3.0 * spread
     normal = design[keep].T @ design[keep]
-    if np.linalg.cond(normal) > 1e10:
+    if np.linalg.cond(normal) > 1e12:
         return None
     covariance = np.linalg.inv(normal) * spread ** 2
     edge = float(coef[1] + coef[2])
