@@ -231,7 +231,8 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
     # '100 %' as nothing real having moved)
     share = ('over 99' if clutter.share > 0.99 else f'{100 * clutter.share:.0f}')
     note = (f'{share} % of the moving targets did not move as road users do '
-            '(the radar\'s false alarms, rain, snow or spray near it, or other clutter that '
+            '(the radar\'s false alarms, rain, snow or spray near it, ghosts of far targets '
+            'folded into its range or of multipath, or other clutter that '
             'moves; the share is high where road users give a radar few targets) and tilted the '
             f'ground plane by {clutter.tilt_deg:.1f} deg: the plane was fitted to the road '
             'users\' tracks alone.')
