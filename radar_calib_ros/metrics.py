@@ -27,6 +27,7 @@ import numpy as np
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import hypotheses
 from radar_calib_ros.core import vehicle as vehicle_box
+from radar_calib_ros.core.refine_noise import tilt_slopes
 from radar_calib_ros.recording import Recording, interpolate_poses
 from radar_calib_ros.types import F64, I64, Extrinsics, TrackedTargets, VehicleTrack, _freeze
 
@@ -272,15 +273,8 @@ def pass_yaw_offsets(recording: Recording, target_index: I64, extrinsics: Extrin
     residual = (recording.targets.radial_velocity_mps[target_index]
                 - np.sum(velocity * rays, axis=1))
     slope = velocity[:, 1] * rays[:, 0] - velocity[:, 0] * rays[:, 1]   # v . (z x ray)
-    # the same for a turn about the radar's own x (roll) and y (pitch) axes: v . R (e x u)
-    unit = local / np.maximum(np.linalg.norm(local, axis=1), 1e-9)[:, None]
-    zeros = np.zeros(unit.shape[0])
-    rotation = np.asarray(extrinsics.rotation, np.float64)
-    tilt_slopes = np.column_stack([
-        np.sum(velocity * (np.column_stack([zeros, -unit[:, 2], unit[:, 1]]) @ rotation.T),
-               axis=1),
-        np.sum(velocity * (np.column_stack([unit[:, 2], zeros, -unit[:, 0]]) @ rotation.T),
-               axis=1)])
+    # the same for a turn about the radar's own x (roll) and y (pitch) axes
+    tilt = tilt_slopes(local, extrinsics.rotation, velocity)
     # one pass per drive through the view, as the calibration's (a stop in view is none)
     t_s = (stamps + np.int64(round(offset_s * 1e9)) - recording.vehicle.stamps_ns[0]) * 1e-9
     pass_id = hypotheses.drive_passes(t_s, recording.vehicle, config.hypotheses.pass_gap_s)
@@ -300,7 +294,7 @@ def pass_yaw_offsets(recording: Recording, target_index: I64, extrinsics: Extrin
         yaws.append(yaw)
         hessian = float(np.sum(slope[in_pass][kept] ** 2))
         weights.append(hessian / spread ** 2 * n_frames / int(kept.sum()))
-        shifts.append(slope[in_pass][kept] @ tilt_slopes[in_pass][kept] / hessian)
+        shifts.append(slope[in_pass][kept] @ tilt[in_pass][kept] / hessian)
         pass_stamps = stamps[pass_id == p]
         spans.append((int(pass_stamps[0]), int(pass_stamps[-1])))
     return PassYaws(np.asarray(yaws, np.float64), np.asarray(weights, np.float64),

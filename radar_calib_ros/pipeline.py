@@ -726,16 +726,16 @@ def _outside_poses_notes(recording: Recording, config: CalibConfig,
     they held would only be called unused."""
     stamps = hypotheses.pose_stamps_ns(recording.frame_stamps_ns, config.sync.time_offset)
     poses = recording.vehicle.stamps_ns
-    outside = (stamps < poses[0]) | (stamps > poses[-1])
+    before, after = stamps < poses[0], stamps > poses[-1]
+    outside = before | after
     if outside.mean() <= _OUTSIDE_POSES_SHARE:
         return []
     note = (f'{int(outside.sum())} of the {stamps.size} radar frames '
             f'({100 * outside.mean():.0f} %) lie outside the vehicle\'s pose stream in time '
             f'({_span(poses)}) and were not used')
     gaps = np.diff(stamps) * 1e-9
-    before, after = stamps < poses[0], stamps > poses[-1]
-    if (min(before.mean(), after.mean()) >= _OUTSIDE_POSES_SIDE_SHARE
-            and not (gaps.size and gaps.max() > _CLOCK_JUMP_S)):
+    jumped = bool(gaps.size and gaps.max() > _CLOCK_JUMP_S)
+    if min(before.mean(), after.mean()) >= _OUTSIDE_POSES_SIDE_SHARE and not jumped:
         # frames on both sides and no jump: a roadside recording that runs before and after
         # the calibration drive, the ordinary case (a fiftieth probe's 28-46 min recordings
         # were told to check the radar's time synchronisation, their clocks 1 ms apart)
@@ -743,7 +743,7 @@ def _outside_poses_notes(recording: Recording, config: CalibConfig,
                 f'{100 * after.mean():.0f} % after its last): the recording runs longer than '
                 'the vehicle\'s drive, which is as it should be where the radar records all '
                 'day.']
-    if name_jump and gaps.size and gaps.max() > _CLOCK_JUMP_S:
+    if name_jump and jumped:
         k = int(np.argmax(gaps))
         note += (f'; the radar\'s stamps jump by {gaps[k]:.1f} s after '
                  f'{stamps[k] * 1e-9:.3f} s (a clock that lost its sync?)')

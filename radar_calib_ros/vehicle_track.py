@@ -1026,7 +1026,7 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, positions: F64, yaw
             counters['odometry_heading_settled_s'] = max(1, int(round(settled - t[0])))
             steady = straight & (t[moving] >= settled)
         offset = _heading_offset(yaw[moving], courses, counters, t[moving], steady)
-        _warn_heading_offset(offset, frame, lat, lon, counters)
+        _warn_heading_offset(offset, frame, lat, lon)
         wander = (_heading_wander(t[moving][straight],
                                   wrap_angle(yaw[moving] - offset - best)[straight], t,
                                   counters) if rtk else None)
@@ -1118,15 +1118,13 @@ def heading_offset_is_grid(offset_deg: float, convergence_deg: float) -> bool:
             and abs(abs(offset_deg) - abs(convergence_deg)) <= _GRID_HEADING_TOLERANCE_DEG)
 
 
-def _warn_heading_offset(offset: float, frame: LocalFrame, lat: F64, lon: F64,
-                         counters: Counter[str]) -> None:
+def _warn_heading_offset(offset: float, frame: LocalFrame, lat: F64, lon: F64) -> None:
     """Say on stderr what a heading offset taken off most likely is."""
     if not offset:
         return
     convergence = math.degrees(float(np.ravel(frame.utm_convergence_rad(
         float(np.median(lat)), float(np.median(lon))))[0]))
     if heading_offset_is_grid(math.degrees(offset), convergence):
-        counters['odometry_heading_grid'] = 1
         _LOG.warning('the Odometry heading is %.2f deg off the vehicle\'s course over ground '
                      'throughout, the meridian convergence here (%.2f deg): a yaw against '
                      'the UTM grid\'s north, not true north; taken off', math.degrees(offset),

@@ -206,9 +206,6 @@ def test_all_radars_prints_in_topic_order(monkeypatch: pytest.MonkeyPatch, tmp_p
     from radar_calib_ros import multi_radar
     found = {'/b/points': 'radar_b', '/a/points': 'radar_a', '/c/points': 'radar_c'}
     monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
-    # the two in 'radar' are two radars: other clouds (a copy is one radar: test_bag.py)
-    monkeypatch.setattr('radar_calib_ros.io.bag.radar_fingerprints',
-                        lambda bag, topics: {t: (t,) for t in topics})
 
     def fake_calibrate(bag: str, params: str | None, topic: str,
                        frame_id: str) -> multi_radar.RadarOutcome:
@@ -248,9 +245,6 @@ def test_all_radars_names_the_radars_left_out_in_its_last_line(
     from radar_calib_ros import multi_radar
     found = {'/a/points': 'radar_a', '/b/points': 'radar_b', '/c/points': 'radar_c'}
     monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
-    # the two in 'radar' are two radars: other clouds (a copy is one radar: test_bag.py)
-    monkeypatch.setattr('radar_calib_ros.io.bag.radar_fingerprints',
-                        lambda bag, topics: {t: (t,) for t in topics})
 
     def fake_calibrate(bag: str, params: str | None, topic: str,
                        frame_id: str) -> multi_radar.RadarOutcome:

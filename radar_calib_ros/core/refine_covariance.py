@@ -215,8 +215,8 @@ _YAW_STEP_MIN_DEG = 0.3
 #: The same where the reference's roll and pitch errors are held in the step's error
 #: (``yaw_step``'s ``tilt_sigma``): the steps that views unlike on either side made of a
 #: tilt, up to 7.5 standard errors without it (a forty-eighth probe's radar seen head-on
-#: and at the edge of its view), are 1.8 at most with it on 46 evaluations of unmoved
-#: radars, where a forty-first probe's 1 deg knock stands at 4.6.
+#: and at the edge of its view), are 1.8 at most with it on 40 evaluations of radars that
+#: did not move during the drive, where a forty-first probe's 1 deg knock stands at 4.6.
 YAW_STEP_TILT_Z = 4.0
 
 

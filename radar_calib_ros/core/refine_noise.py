@@ -50,15 +50,35 @@ def _azimuth_noise_deg(g: dict[str, F64], data: _Selected) -> float:
     lines of sight fastest just then; a forty-eighth probe's radar that saw U-turns and
     otherwise the car head-on read 1.1 deg of 'azimuth noise' from its 0.3 deg.
     """
-    straight = np.abs(g['rate']) < _NOISE_MAX_YAW_RATE_RPS
-    if int(straight.sum()) < 10 * _NOISE_BIN_TARGETS:
+    straight, w_perp = _straight_crossing(g)
+    if w_perp.size < 10 * _NOISE_BIN_TARGETS:
         return 0.0
-    unit, velocity = g['unit_v'][straight], g['point_velocity'][straight]
-    w_perp = velocity[:, 1] * unit[:, 0] - velocity[:, 0] * unit[:, 1]
     slope, top = _spread_growth(np.abs(w_perp), (g['v_pred'] - data.v_mps)[straight])
     if top < _NOISE_CROSS_SPEED_MPS ** 2:
         return 0.0    # seen head-on only: too little speed across the lines of sight
     return float(np.degrees(math.sqrt(slope)))
+
+
+def _straight_crossing(g: dict[str, F64]) -> tuple[np.ndarray, F64]:
+    """The targets of a car driving straight (yaw rate below ``_NOISE_MAX_YAW_RATE_RPS``)
+    and, for those, the speed of the rigid car's velocity field across their lines of sight
+    (W_perp), from the fit's geometry ``g``."""
+    straight = np.abs(g['rate']) < _NOISE_MAX_YAW_RATE_RPS
+    unit, velocity = g['unit_v'][straight], g['point_velocity'][straight]
+    return straight, velocity[:, 1] * unit[:, 0] - velocity[:, 0] * unit[:, 1]
+
+
+def tilt_slopes(sensor_m: F64, rotation: F64, velocity: F64) -> F64:
+    """(n, 2) change of each target's radial velocity per radian of the radar's roll and
+    pitch (turns about its own x and y axes): ``v . R (e x u)``, with ``u`` the target's
+    direction in the sensor frame (``sensor_m``, (n, 3)), ``R`` the sensor-to-world
+    rotation and ``v`` the target's velocity (n, 3)."""
+    unit = sensor_m / np.maximum(np.linalg.norm(sensor_m, axis=1), 1e-9)[:, None]
+    zeros = np.zeros(unit.shape[0])
+    rotation = np.asarray(rotation, np.float64)
+    roll = np.column_stack([zeros, -unit[:, 2], unit[:, 1]]) @ rotation.T
+    pitch = np.column_stack([unit[:, 2], zeros, -unit[:, 0]]) @ rotation.T
+    return np.column_stack([np.sum(velocity * roll, axis=1), np.sum(velocity * pitch, axis=1)])
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,11 +112,9 @@ def _azimuth_bias(g: dict[str, F64], data: _Selected) -> AzimuthBias | None:
     Fitted over a car driving straight (as ``_azimuth_noise_deg``), with outliers beyond
     three robust deviations left out; the residual yaw is fitted with it.
     """
-    straight = np.abs(g['rate']) < _NOISE_MAX_YAW_RATE_RPS
-    if int(straight.sum()) < 10 * _NOISE_BIN_TARGETS:
+    straight, w_perp = _straight_crossing(g)
+    if w_perp.size < 10 * _NOISE_BIN_TARGETS:
         return None
-    unit, velocity = g['unit_v'][straight], g['point_velocity'][straight]
-    w_perp = velocity[:, 1] * unit[:, 0] - velocity[:, 0] * unit[:, 1]
     residual = (g['v_pred'] - data.v_mps)[straight]
     azimuth = np.arctan2(data.sensor_m[straight, 1], data.sensor_m[straight, 0])
     half_width = float(np.percentile(np.abs(azimuth), 99))
@@ -106,14 +124,9 @@ def _azimuth_bias(g: dict[str, F64], data: _Selected) -> AzimuthBias | None:
     # A roll or pitch the fit has wrong turns the lines of sight too, pitch by its angle
     # times the sine of the azimuth (and the dip): fitted alongside, as the residual yaw is,
     # so that a tilt error is not read as one of the azimuths.
-    sensor = data.sensor_m[straight]
-    unit_s = sensor / np.maximum(np.linalg.norm(sensor, axis=1), 1e-9)[:, None]
-    zeros = np.zeros(unit_s.shape[0])
-    rotation = np.asarray(g['rot'], np.float64)
-    roll = np.column_stack([zeros, -unit_s[:, 2], unit_s[:, 1]]) @ rotation.T
-    pitch = np.column_stack([unit_s[:, 2], zeros, -unit_s[:, 0]]) @ rotation.T
     design = np.column_stack([w_perp, w_perp * t, w_perp * t ** 3,
-                              np.sum(velocity * roll, axis=1), np.sum(velocity * pitch, axis=1)])
+                              tilt_slopes(data.sensor_m[straight], g['rot'],
+                                          g['point_velocity'][straight])])
     keep = np.ones(residual.size, bool)
     spread = 0.0
     for _ in range(3):
