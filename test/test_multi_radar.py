@@ -196,26 +196,38 @@ def test_evaluate_compares_each_radar_with_its_own_truth(
         assert errors['horizontal_m'] < 1e-3 and errors['rotation_deg'] < 1e-3
 
 
-def test_all_radars_prints_in_topic_order(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
-                                          capsys: pytest.CaptureFixture[str]) -> None:
-    """The radars finish in any order; the results are printed in topic order, the order of
-    the files and of the combined parameters (an operator probe's N11: completion order,
-    and a topics line in another)."""
+def _fake_radars(monkeypatch: pytest.MonkeyPatch, found: dict[str, str],
+                 failing: dict[str, str] | None = None) -> None:
+    """--all-radars over the radar topics ``found`` (topic -> frame) with each radar's
+    calibration faked: a result named after its frame and a one-line summary, or for the
+    frames in ``failing`` the error given (exit 1); in threads instead of processes, so
+    that the fake is called."""
     from concurrent.futures import ThreadPoolExecutor
 
     from radar_calib_ros import multi_radar
-    found = {'/b/points': 'radar_b', '/a/points': 'radar_a', '/c/points': 'radar_c'}
     monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
 
     def fake_calibrate(bag: str, params: str | None, topic: str,
                        frame_id: str) -> multi_radar.RadarOutcome:
+        if failing and frame_id in failing:
+            return multi_radar.RadarOutcome(topic, frame_id, None, failing[frame_id], 1, ())
         cal = {k: frame_id if k == 'radar_frame' else k for k in TRANSFORM_KEYS}
         cal['quality'] = {}
         return multi_radar.RadarOutcome(topic, frame_id, cal, None, 0, (f'summary {frame_id}',))
 
     monkeypatch.setattr(multi_radar, 'calibrate_topic', fake_calibrate)
-    # threads instead of processes (so the fake is called), finishing last topic first
     monkeypatch.setattr(multi_radar, 'ProcessPoolExecutor', ThreadPoolExecutor)
+
+
+def test_all_radars_prints_in_topic_order(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """The radars finish in any order; the results are printed in topic order, the order of
+    the files and of the combined parameters (an operator probe's N11: completion order,
+    and a topics line in another)."""
+    from radar_calib_ros import multi_radar
+    _fake_radars(monkeypatch, {'/b/points': 'radar_b', '/a/points': 'radar_a',
+                               '/c/points': 'radar_c'})
+    # finishing last topic first
     monkeypatch.setattr(multi_radar, 'as_completed', lambda futures: list(reversed(futures)))
     bag = tmp_path / 'bag'
     bag.mkdir()
@@ -240,23 +252,9 @@ def test_all_radars_names_the_radars_left_out_in_its_last_line(
         capsys: pytest.CaptureFixture[str]) -> None:
     """One radar of three cannot be calibrated: the closing line names it with its reason
     (a forty-seventh probe read '3 of 4 radars calibrated' without which), exit 1."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from radar_calib_ros import multi_radar
-    found = {'/a/points': 'radar_a', '/b/points': 'radar_b', '/c/points': 'radar_c'}
-    monkeypatch.setattr('radar_calib_ros.io.bag.radar_frame_ids', lambda bag: found)
-
-    def fake_calibrate(bag: str, params: str | None, topic: str,
-                       frame_id: str) -> multi_radar.RadarOutcome:
-        if frame_id == 'radar_b':
-            return multi_radar.RadarOutcome(topic, frame_id, None,
-                                            'read: no radar frame in the recording', 1, ())
-        cal = {k: frame_id if k == 'radar_frame' else k for k in TRANSFORM_KEYS}
-        cal['quality'] = {}
-        return multi_radar.RadarOutcome(topic, frame_id, cal, None, 0, ())
-
-    monkeypatch.setattr(multi_radar, 'calibrate_topic', fake_calibrate)
-    monkeypatch.setattr(multi_radar, 'ProcessPoolExecutor', ThreadPoolExecutor)
+    _fake_radars(monkeypatch, {'/a/points': 'radar_a', '/b/points': 'radar_b',
+                               '/c/points': 'radar_c'},
+                 failing={'radar_b': 'read: no radar frame in the recording'})
     bag = tmp_path / 'bag'
     bag.mkdir()
     params = tmp_path / 'p.yaml'
