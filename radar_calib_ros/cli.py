@@ -23,6 +23,7 @@ from radar_calib_ros.config import CalibConfig, VehicleConfig
 from radar_calib_ros.errors import CalibrationError, ResultFileError, exit_code
 
 if TYPE_CHECKING:
+    from radar_calib_ros.io.bag import BagPaths
     from radar_calib_ros.recording import Recording
 
 _LOG = logging.getLogger('radar_calib_ros')
@@ -32,6 +33,14 @@ DEFAULT_OUTPUT_DIR = 'radar_calibrations'
 
 def _load_config(params: str | None) -> CalibConfig:
     return CalibConfig.from_file(params) if params else CalibConfig()
+
+
+def _say_bags(bags: Sequence[str]) -> None:
+    """Name the bags read together, so that a run over several is never mistaken for one
+    over the first."""
+    if len(bags) > 1:
+        print(f'note: reading {len(bags)} bags as one recording: {", ".join(bags)}',
+              file=sys.stderr)
 
 
 class _Progress:
@@ -102,7 +111,7 @@ class _Progress:
             self._stage_bar = None
 
 
-def calibrate_bag(bag: str | Path, config: CalibConfig, *, progress: _Progress | None = None,
+def calibrate_bag(bag: BagPaths, config: CalibConfig, *, progress: _Progress | None = None,
                   ) -> tuple[Any, float]:
     """Read a bag and run the pipeline; returns (CalibrationResult, read time [s])."""
     from radar_calib_ros.io.bag import read_recording
@@ -227,6 +236,7 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
                                {'parameters file (--params)': args.params}, args.bag)
     _check_writable(args.output, args.json)
     _refuse_file_as_directory('--report', args.report)
+    _say_bags(args.bag)
     config = _radar_of_frame(args.bag, config)
     _refuse_ambiguous_radar(args.bag, config)
     _warn_frame_id(args.bag, config)
@@ -254,17 +264,18 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
           + (f' (replacing the earlier {" and ".join(replaced)})' if replaced else ''),
           file=out)
     if args.report:
+        from radar_calib_ros.io.bag import bag_label
         from radar_calib_ros.report import report_calibration
         start = time.perf_counter()
         files = report_calibration(args.report, result, config, calibration=calibration,
                                    truth=_ground_truth(args.bag, calibration['radar_frame']),
-                                   source=str(args.bag))
+                                   source=bag_label(args.bag))
         print(f'report written to {files.html} ({len(files.figures)} figures, '
               f'{time.perf_counter() - start:.1f} s)', file=out)
     return 0
 
 
-def _ground_truth(bag: str | Path, radar_frame: str | None = None) -> dict[str, Any] | None:
+def _ground_truth(bag: BagPaths, radar_frame: str | None = None) -> dict[str, Any] | None:
     """The simulator's ground truth next to a bag (the directory, or a metadata.yaml's
     directory) of the radar in ``radar_frame``, or None; a broken one is skipped with a
     warning, never used silently.
@@ -273,12 +284,13 @@ def _ground_truth(bag: str | Path, radar_frame: str | None = None) -> dict[str, 
     radar's, so an evaluation of the others compared with no truth (an operator probe's
     N9), or would have with the wrong one."""
     from radar_calib_ros.groundtruth import load_ground_truth
-    path = Path(bag)
+    # of several bags of one recording, the first's (a simulator writes one per recording)
+    path = Path(bag) if isinstance(bag, (str, Path)) else Path(bag[0])
     try:
         return load_ground_truth(path if path.is_dir() else path.parent,
                                  None if radar_frame is None else radar_frame.lstrip('/'))
     except (OSError, ValueError) as err:
-        print(f'warning: ignoring the unreadable ground truth next to {bag}: {err}',
+        print(f'warning: ignoring the unreadable ground truth next to {path}: {err}',
               file=sys.stderr)
         return None
 
@@ -298,6 +310,7 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
                                {'calibration file (--calibration)': args.calibration,
                                 'parameters file (--params)': args.params}, args.bag)
     _check_writable(args.json)
+    _say_bags(args.bag)
     calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
     read_s = time.perf_counter() - start
     evaluation = evaluate_recording(
@@ -321,21 +334,23 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
+    from radar_calib_ros.io.bag import bag_label
     from radar_calib_ros.report import report_recording
     start = time.perf_counter()
     config = _load_config(args.params)
     _refuse_file_as_directory('--out', args.out)
+    _say_bags(args.bag)
     calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
     files = report_recording(
         args.out, recording, calibration, config,
         truth=_ground_truth(args.bag, str(calibration.get('radar_frame', 'radar'))),
-        source=str(args.bag))
+        source=bag_label(args.bag))
     print(f'report written to {files.html} ({len(files.figures)} figures, '
           f'{time.perf_counter() - start:.1f} s)', file=out)
     return 0
 
 
-def _calibrated_recording(bag: str, calibration_path: str,
+def _calibrated_recording(bag: BagPaths, calibration_path: str,
                           config: CalibConfig) -> tuple[dict[str, Any], Recording]:
     """The calibration (of ``radar.frame_id`` where the file holds several radars') and the
     recording of that radar's topic (found by its frame where the parameters name none),
@@ -351,7 +366,7 @@ def _calibrated_recording(bag: str, calibration_path: str,
     return calibration, recording
 
 
-def _warn_other_radar(bag: str, config: CalibConfig, topic: str | None,
+def _warn_other_radar(bag: BagPaths, config: CalibConfig, topic: str | None,
                       result_frame: str) -> None:
     """Warn when the clouds read are in another frame than the result's radar: a result of
     another radar, evaluated without a word (a thirty-seventh probe's 'radar_north' result
@@ -365,7 +380,7 @@ def _warn_other_radar(bag: str, config: CalibConfig, topic: str | None,
               'the two as if they were one.', file=sys.stderr)
 
 
-def _radar_of_frame(bag: str, config: CalibConfig) -> CalibConfig:
+def _radar_of_frame(bag: BagPaths, config: CalibConfig) -> CalibConfig:
     """Where the bag holds several radar topics and the parameters name none but set
     ``radar.frame_id``, the topic whose messages are in that frame (as ``evaluate`` finds
     it: a twenty-fifth probe's ``calibrate`` refused what ``evaluate`` took)."""
@@ -378,7 +393,7 @@ def _radar_of_frame(bag: str, config: CalibConfig) -> CalibConfig:
                                explicit=config.explicit | {'radar_topic'})
 
 
-def _refuse_ambiguous_radar(bag: str, config: CalibConfig) -> None:
+def _refuse_ambiguous_radar(bag: BagPaths, config: CalibConfig) -> None:
     """Several radar topics and no ``radar_topic``: say how to choose (exit 2)."""
     from radar_calib_ros.errors import BagReadError
     from radar_calib_ros.multi_radar import ambiguous_radar_topics
@@ -403,7 +418,7 @@ def _topics_in_frame(frames: Mapping[str, str], frame_id: str) -> list[str]:
             if frame.lstrip('/') == frame_id.lstrip('/')]
 
 
-def _frame_matches(bag: str, frame_id: str) -> str:
+def _frame_matches(bag: BagPaths, frame_id: str) -> str:
     """Which of the bag's radar topics are in ``frame_id``, in words."""
     from radar_calib_ros.io.bag import radar_frame_ids
     matching = _topics_in_frame(radar_frame_ids(bag), frame_id)
@@ -412,7 +427,7 @@ def _frame_matches(bag: str, frame_id: str) -> str:
     return f'{len(matching)} of them ({", ".join(matching)})'
 
 
-def _topic_of_frame(bag: str, config: CalibConfig, frame_id: str) -> str | None:
+def _topic_of_frame(bag: BagPaths, config: CalibConfig, frame_id: str) -> str | None:
     """The radar topic whose messages are in ``frame_id``, where the parameters name none
     and the bag holds several radar topics (one radar's result of ``--all-radars``)."""
     from radar_calib_ros.io.bag import radar_frame_ids
@@ -453,7 +468,8 @@ _BAG_FILE_SUFFIXES = ('.mcap', '.db3', '.db3-wal', '.db3-shm')
 
 
 def _refuse_overwriting_inputs(outputs: dict[str, str | None],
-                               inputs: dict[str, str | None], bag: str | None) -> None:
+                               inputs: dict[str, str | None],
+                               bag: BagPaths | None) -> None:
     """ResultFileError (exit 2) before the work when an output would replace an input (the
     parameters or calibration file, a file of the bag) or another output: a probe's
     ``--output site.yaml`` with ``--params site.yaml`` replaced the site's parameters by
@@ -464,16 +480,16 @@ def _refuse_overwriting_inputs(outputs: dict[str, str | None],
     def same(path: str) -> Path:
         return Path(os.path.realpath(path))
 
-    bag_files: set[Path] = set()
-    if bag:
-        root = same(bag)
+    bag_files: dict[Path, str] = {}
+    for one in [bag] if isinstance(bag, (str, Path)) else bag or []:
+        root = same(str(one))
         if root.name == 'metadata.yaml' and root.is_file():
             root = root.parent    # the bag given by its metadata.yaml
         if root.is_file():
-            bag_files = {root}
+            bag_files[root] = str(one)
         elif root.is_dir():
-            bag_files = {p for p in root.iterdir() if p.name == 'metadata.yaml'
-                         or p.name.endswith(_BAG_FILE_SUFFIXES)}
+            bag_files.update({p: str(one) for p in root.iterdir() if p.name == 'metadata.yaml'
+                              or p.name.endswith(_BAG_FILE_SUFFIXES)})
     taken: dict[Path, str] = {}
     for flag, path in outputs.items():
         if not path or is_stream(path):
@@ -488,11 +504,12 @@ def _refuse_overwriting_inputs(outputs: dict[str, str | None],
                 raise ResultFileError(f'{flag} {path!r} is the {role}: writing there would '
                                       f'replace it; choose another {flag}')
         if target in bag_files:
-            raise ResultFileError(f'{flag} {path!r} is a file of the recording {bag!r}: '
+            raise ResultFileError(f'{flag} {path!r} is a file of the recording '
+                                  f'{bag_files[target]!r}: '
                                   f'writing there would destroy it; choose another {flag}')
 
 
-def _warn_frame_id(bag: str, config: CalibConfig) -> None:
+def _warn_frame_id(bag: BagPaths, config: CalibConfig) -> None:
     """Warn when the radar topic's header frame_id is not ``radar.frame_id``."""
     from radar_calib_ros.io.bag import configured_radar_frame_id
     from radar_calib_ros.io.messages import frame_id_mismatch
@@ -530,6 +547,7 @@ def cmd_calibrate_all_radars(args: argparse.Namespace, out: TextIO) -> int:
                                {'parameters file (--params)': args.params}, args.bag)
     _check_writable(args.output, args.json)
     _note_unused_radar_choice(args.params)
+    _say_bags(args.bag)
     start = time.perf_counter()
 
     def done(outcome: Any) -> None:
@@ -673,7 +691,10 @@ def _truth_table(calibration: dict[str, Any], truth: dict[str, Any], result: Any
 def _add_recording_arguments(p: argparse.ArgumentParser, *, calibration: bool) -> None:
     """The recording (and, for commands that read one, the calibration file) and the
     parameters file, worded the same in every subcommand."""
-    p.add_argument('bag', help='rosbag2 directory (sqlite3 or mcap)')
+    p.add_argument('bag', nargs='+', metavar='BAG',
+                   help='rosbag2 directory (sqlite3 or mcap); several are read as one '
+                   'recording (a drive split by a recorder restart, or the radar recorded at '
+                   'the roadside and the vehicle\'s poses in the vehicle)')
     if calibration:
         p.add_argument('--calibration', required=True, metavar='RESULT',
                        help='result file of radar-calib calibrate (result.yaml or result.json)')

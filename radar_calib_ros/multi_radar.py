@@ -20,10 +20,13 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.errors import BagReadError, CalibrationError, exit_code
+
+if TYPE_CHECKING:
+    from radar_calib_ros.io.bag import BagPaths
 
 _LOG = logging.getLogger(__name__)
 
@@ -58,7 +61,7 @@ def _same_topic(a: str, b: str) -> bool:
     return a.lstrip('/') == b.lstrip('/')
 
 
-def ambiguous_radar_topics(bag: str | Path, config: CalibConfig) -> list[str]:
+def ambiguous_radar_topics(bag: BagPaths, config: CalibConfig) -> list[str]:
     """The bag's radar topics when there are several and the parameters pick none, else [].
 
     Raises
@@ -75,7 +78,7 @@ def ambiguous_radar_topics(bag: str | Path, config: CalibConfig) -> list[str]:
     return []
 
 
-def radar_frames(bag: str | Path) -> dict[str, str]:
+def radar_frames(bag: BagPaths) -> dict[str, str]:
     """Radar topic -> the frame its result is for, sorted by topic: the messages' frame_id
     as TF has it (a frame with '/' keeps it: a carla-ros-bridge's 'ego_vehicle/radar_front'
     renamed would be a transform nobody looks up), or, where that is empty or shared by
@@ -87,10 +90,11 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
     BagReadError
         The bag cannot be opened, or holds no radar topic.
     """
-    from radar_calib_ros.io.bag import radar_frame_ids
+    from radar_calib_ros.io.bag import bag_label, radar_frame_ids
     found = radar_frame_ids(bag)
     if not found:
-        raise BagReadError(f'no radar topic (PointCloud2 or RadarScan) in {str(bag)!r}')
+        raise BagReadError(f'no radar topic (PointCloud2 or RadarScan) in '
+                           f'{bag_label(bag)!r}')
     for copy in _copied_topics(bag, found):
         del found[copy]
     names: dict[str, str] = {}
@@ -111,7 +115,7 @@ def radar_frames(bag: str | Path) -> dict[str, str]:
     return names
 
 
-def _copied_topics(bag: str | Path, found: Mapping[str, str]) -> list[str]:
+def _copied_topics(bag: BagPaths, found: Mapping[str, str]) -> list[str]:
     """The radar topics that repeat an earlier topic's clouds in the same frame (equal
     first messages), each said.
 
@@ -191,7 +195,7 @@ def _own_clock_advice(calibration: dict[str, Any]) -> None:
         quality['advice'] = [_own_clock(a) for a in quality['advice']]
 
 
-def calibrate_topic(bag: str, params: str | None, topic: str, frame_id: str) -> RadarOutcome:
+def calibrate_topic(bag: BagPaths, params: str | None, topic: str, frame_id: str) -> RadarOutcome:
     """Calibrate one radar topic of a bag (runs in a worker process; never raises a
     CalibrationError, it is returned as the outcome's error)."""
     from radar_calib_ros.cli import summary_lines
@@ -217,7 +221,7 @@ def calibrate_topic(bag: str, params: str | None, topic: str, frame_id: str) -> 
                         read_s, run_s)
 
 
-def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
+def calibrate_all_radars(bag: BagPaths, params: str | None = None, *,
                          jobs: int | None = None,
                          done: Callable[[RadarOutcome], None] | None = None,
                          begin: Callable[[dict[str, str]], None] | None = None,
@@ -226,8 +230,8 @@ def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
 
     Parameters
     ----------
-    bag : str or Path
-        A rosbag2 directory.
+    bag : str or Path, or a sequence of them
+        A rosbag2 directory, or several read as one recording.
     params : str, optional
         ROS 2 parameters file for every radar (its ``radar_topic`` and ``radar.frame_id``
         are overridden per topic).
@@ -273,11 +277,11 @@ def calibrate_all_radars(bag: str | Path, params: str | None = None, *,
 
     if workers == 1:
         for topic, frame in frames.items():
-            outcomes[topic] = calibrate_topic(str(bag), params, topic, frame)
+            outcomes[topic] = calibrate_topic(bag, params, topic, frame)
             report_ready()
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = [pool.submit(calibrate_topic, str(bag), params, topic, frame)
+            futures = [pool.submit(calibrate_topic, bag, params, topic, frame)
                        for topic, frame in frames.items()]
             for future in as_completed(futures):
                 outcome = future.result()

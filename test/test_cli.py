@@ -576,3 +576,45 @@ def test_the_summary_says_which_point_of_the_vehicle_the_altitude_rests_on() -> 
     lines = summary_lines(calibration, vehicle=vehicle)
     assert lines[3].startswith("  heights    the vehicle's targets taken as 0.35 +- 0.30 m "
                                'above the road on average (refine.reflection_height_m'), lines
+
+
+def test_two_bags_of_one_drive_calibrate_as_one(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], drive: Any) -> None:
+    """A drive whose recorder restarted halfway: both bags given together calibrate on
+    every pass (a fiftieth probe had to copy their storage files into one folder)."""
+    import json
+
+    from rosbags.rosbag2 import Reader
+
+    from radar_calib_ros.groundtruth import calibration_errors
+    from radar_calib_ros.io.bag import write_bag
+    summary, _ = drive
+    with Reader(summary.paths.bag) as reader:
+        items = [(c.topic, c.msgtype, t, bytes(raw)) for c, t, raw in reader.messages()]
+    items.sort(key=lambda item: item[2])
+    middle = (items[0][2] + items[-1][2]) // 2
+    halves = [tmp_path / 'first', tmp_path / 'second']
+    write_bag(halves[0], (i for i in items if i[2] < middle))
+    write_bag(halves[1], (i for i in items if i[2] >= middle), storage='sqlite3')
+    params = str(summary.paths.params)
+    code, out, err = _run(['calibrate', *map(str, halves), '--params', params,
+                           '--json', str(tmp_path / 'both.json'), '--output',
+                           str(tmp_path / 'both.yaml'), '--no-progress'], capsys)
+    assert code == 0, err
+    assert f'note: reading 2 bags as one recording: {halves[0]}, {halves[1]}' in err
+    both = json.loads((tmp_path / 'both.json').read_text())
+    truth = json.loads(summary.paths.ground_truth.read_text())
+    errors = calibration_errors(both, truth)
+    assert errors['horizontal_m'] < 0.15 and errors['rotation_deg'] < 0.5
+    code, _, err = _run(['calibrate', str(halves[0]), '--params', params, '--json',
+                         str(tmp_path / 'first.json'), '--output',
+                         str(tmp_path / 'first.yaml'), '--no-progress'], capsys)
+    if code == 0:
+        first = json.loads((tmp_path / 'first.json').read_text())
+        assert both['quality']['passes'] > first['quality']['passes']
+    else:
+        assert code == 1 and 'pass' in err, err   # too few passes in half the drive
+    # a result onto a file of the second bag is refused as onto the first's
+    code, _, err = _run(['calibrate', *map(str, halves), '--params', params, '--output',
+                         str(halves[1] / 'metadata.yaml')], capsys)
+    assert code == 2 and f'file of the recording {str(halves[1])!r}' in err

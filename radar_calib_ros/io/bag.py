@@ -17,8 +17,8 @@ import hashlib
 import logging
 import sqlite3
 import struct
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -37,8 +37,8 @@ if TYPE_CHECKING:
 
     from radar_calib_ros.config import CalibConfig
 
-__all__ = ['RADAR_TYPES', 'ROLE_TYPES', 'configured_radar_frame_id', 'radar_frame_ids',
-           'radar_topics', 'read_recording', 'select_topics', 'write_bag']
+__all__ = ['RADAR_TYPES', 'ROLE_TYPES', 'BagPaths', 'bag_label', 'configured_radar_frame_id',
+           'radar_frame_ids', 'radar_topics', 'read_recording', 'select_topics', 'write_bag']
 
 #: Message types accepted per role.
 RADAR_TYPES = (msgs.POINTCLOUD2, msgs.RADARSCAN)
@@ -59,6 +59,8 @@ _STORAGE_SUFFIXES = ('.mcap', '.db3')
 _STORAGE_ERRORS = (ReaderError, AnyReaderError, SerdeError, sqlite3.DatabaseError,
                    struct.error, EOFError, ValueError, KeyError, IndexError, UnicodeError)
 _PROGRESS_EVERY = 1000
+#: One rosbag2 directory, or several read as one recording (``_ChainReader``).
+BagPaths = str | Path | Sequence[str | Path]
 
 
 # --- topics ------------------------------------------------------------------------------
@@ -439,6 +441,90 @@ class _SplitReader(_JazzyDecoding):
             part.close()
 
 
+class _ChainReader:
+    """Several bags of one recording read as one (``calibrate A B``): a recorder restarted
+    in the middle of the drive, or the radar recorded at the roadside and the vehicle's
+    poses in the vehicle. Each is opened as alone (``_open_reader``), in the order given;
+    the ``RecordingBuilder`` orders the messages by their stamps, and drops a radar scan
+    that two of them both hold (``radar_messages_duplicate``).
+
+    Why: a fiftieth probe's drive, split by a recorder restart into two bags of 4-5 passes
+    each, could only be calibrated whole by copying both storage files into one folder
+    without metadata (9 passes, 2.7 cm, and a warning about an interrupted recording)."""
+
+    def __init__(self, paths: list[Path], stack: ExitStack) -> None:
+        self._parts = [stack.enter_context(_open_reader(path)) for path in paths]
+        for path, part in zip(paths, self._parts):
+            for connection in part.connections:
+                _check_same_type(connection, self._parts, paths)
+        self.connections: list[Any] = [c for part in self._parts for c in part.connections]
+        self._owner = {id(c): part for part in self._parts for c in part.connections}
+        self._current: Any = self._parts[0]
+
+    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, Any]]:
+        wanted = list(connections) or self.connections
+        for part in self._parts:
+            own = [c for c in wanted if self._owner.get(id(c)) is part]
+            if own:
+                # a bag's own reader decodes its messages (AnyReader with the bag's
+                # embedded definitions): ``_messages`` deserialises each as it is yielded
+                self._current = part
+                yield from part.messages(own)
+
+    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
+        return self._current.deserialize(rawdata, msgtype)
+
+    def close(self) -> None:
+        pass    # the parts close with the ExitStack that opened them
+
+
+def _check_same_type(connection: Any, parts: list[Any], paths: list[Path]) -> None:
+    """A topic that several bags hold must have one message type in all of them."""
+    for path, part in zip(paths, parts):
+        for other in part.connections:
+            if other.topic == connection.topic and other.msgtype != connection.msgtype:
+                raise BagReadError(
+                    f'topic {connection.topic} is {connection.msgtype} in one bag and '
+                    f'{other.msgtype} in {str(path)!r}: bags read as one recording must '
+                    'agree on their topics\' types')
+
+
+def _bag_paths(path: BagPaths) -> list[Path]:
+    """The bag (or bags, read as one recording) that ``path`` names, a bag given twice
+    refused (each message would count twice)."""
+    paths = [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
+    if not paths:
+        raise BagReadError('no bag given')
+    seen: dict[Path, Path] = {}
+    for p in paths:
+        key = _check_bag_path(p).resolve() if p.exists() else p.absolute()
+        if key in seen:
+            raise BagReadError(f'bag {str(p)!r} is given twice (as {str(seen[key])!r}): '
+                               'give each bag of the recording once')
+        seen[key] = p
+    return paths
+
+
+def bag_label(path: BagPaths) -> str:
+    """The bag, or the bags read as one recording, in a message."""
+    if isinstance(path, (str, Path)):
+        return str(path)
+    return ' + '.join(str(p) for p in path)
+
+
+@contextmanager
+def _open_bags(path: BagPaths) -> Iterator[tuple[_BagReader, Path]]:
+    """A reader over the bag, or over several read as one (``_ChainReader``), with the path
+    its errors name."""
+    paths = _bag_paths(path)
+    if len(paths) == 1:
+        with _open_reader(paths[0]) as reader:
+            yield reader, paths[0]
+        return
+    with ExitStack() as stack:
+        yield _ChainReader(paths, stack), Path(bag_label(paths))
+
+
 def _unread_logs(path: Path) -> list[Path]:
     """Write-ahead logs of sqlite3 storage files that still hold pages (a recording not
     closed cleanly), which an immutable open of the database does not see."""
@@ -514,7 +600,7 @@ def _reason(err: BaseException) -> str:
     return text if len(text) <= 300 else text[:297] + '...'
 
 
-def radar_topics(path: str | Path, velocity_field: str = '') -> list[str]:
+def radar_topics(path: BagPaths, velocity_field: str = '') -> list[str]:
     """Every radar topic (PointCloud2 or radar_msgs RadarScan) of a bag, sorted; of
     several, not the PointCloud2 topics without a radial velocity (``_not_radars``).
 
@@ -523,10 +609,9 @@ def radar_topics(path: str | Path, velocity_field: str = '') -> list[str]:
     BagReadError
         The bag cannot be opened.
     """
-    path = Path(path)
-    with _open_reader(path) as reader:
+    with _open_bags(path) as (reader, label):
         topics = {c.topic for c in reader.connections if c.msgtype in RADAR_TYPES}
-        return sorted(topics - _not_radars(reader, path, velocity_field))
+        return sorted(topics - _not_radars(reader, label, velocity_field))
 
 
 #: Messages of a PointCloud2 topic looked at for its fields (empty scans carry none).
@@ -555,7 +640,7 @@ def _not_radars(reader: _BagReader, path: Path, velocity_field: str) -> set[str]
     return out
 
 
-def radar_frame_ids(path: str | Path) -> dict[str, str]:
+def radar_frame_ids(path: BagPaths) -> dict[str, str]:
     """The header ``frame_id`` of the first message of every radar topic of a bag (of
     several, not the PointCloud2 topics without a radial velocity: ``_not_radars``).
 
@@ -566,22 +651,21 @@ def radar_frame_ids(path: str | Path) -> dict[str, str]:
     BagReadError
         The bag cannot be opened or read.
     """
-    path = Path(path)
     frames: dict[str, str] = {}
-    with _open_reader(path) as reader:
-        skip = _not_radars(reader, path, '')
+    with _open_bags(path) as (reader, label):
+        skip = _not_radars(reader, label, '')
         for connection in reader.connections:
             if (connection.msgtype not in RADAR_TYPES or connection.topic in frames
                     or connection.topic in skip):
                 continue
             frames[connection.topic] = ''
-            for _, _, msg in _messages(reader, [connection], path):
+            for _, _, msg in _messages(reader, [connection], label):
                 frames[connection.topic] = str(msg.header.frame_id)
                 break
     return dict(sorted(frames.items()))
 
 
-def radar_fingerprints(path: str | Path, topics: Iterable[str],
+def radar_fingerprints(path: BagPaths, topics: Iterable[str],
                        count: int = 8) -> dict[str, tuple[str, ...]]:
     """Topic -> digests of its first ``count`` serialised messages (empty for a topic with
     none): two topics with equal digests carry the same clouds.
@@ -591,10 +675,9 @@ def radar_fingerprints(path: str | Path, topics: Iterable[str],
     BagReadError
         The bag cannot be opened or read.
     """
-    path = Path(path)
     wanted = set(topics)
     prints: dict[str, tuple[str, ...]] = {}
-    with _open_reader(path) as reader:
+    with _open_bags(path) as (reader, label):
         for topic in sorted(wanted):
             connections = [c for c in reader.connections if c.topic == topic]
             digests: list[str] = []
@@ -605,12 +688,12 @@ def radar_fingerprints(path: str | Path, topics: Iterable[str],
                     if len(digests) >= count:
                         break
             except (OSError, *_STORAGE_ERRORS) as err:
-                raise BagReadError(f'reading bag {str(path)!r}: {_reason(err)}') from err
+                raise BagReadError(f'reading bag {str(label)!r}: {_reason(err)}') from err
             prints[topic] = tuple(digests)
     return prints
 
 
-def configured_radar_frame_id(path: str | Path, config: CalibConfig) -> str:
+def configured_radar_frame_id(path: BagPaths, config: CalibConfig) -> str:
     """The header ``frame_id`` of the radar topic the parameters pick (matched as
     :func:`select_topics` does, with or without the leading '/', else the bag's only radar
     topic); '' when none is picked or the header names none.
@@ -627,15 +710,15 @@ def configured_radar_frame_id(path: str | Path, config: CalibConfig) -> str:
     return next(iter(frames.values())) if len(frames) == 1 else ''
 
 
-def read_recording(path: str | Path, config: CalibConfig, *,
+def read_recording(path: BagPaths, config: CalibConfig, *,
                    progress: Callable[[int, int], None] | None = None,
                    radar_topic: str | None = None) -> Recording:
     """Read a rosbag2 recording into a :class:`Recording`.
 
     Parameters
     ----------
-    path : str or Path
-        A rosbag2 directory (sqlite3 or mcap storage).
+    path : str or Path, or a sequence of them
+        A rosbag2 directory (sqlite3 or mcap storage), or several read as one recording.
     config : CalibConfig
         Topics, ``radar.velocity_field`` and what ``RecordingBuilder`` uses.
     progress : callable(done, total), optional
@@ -659,12 +742,11 @@ def read_recording(path: str | Path, config: CalibConfig, *,
     if radar_topic is not None:
         config = dataclasses.replace(config, radar_topic=radar_topic,
                                      explicit=config.explicit | {'radar_topic'})
-    path = Path(path)
     builder = RecordingBuilder(config)
-    with _open_reader(path) as reader:
+    with _open_bags(path) as (reader, label):
         topics = {c.topic: c.msgtype for c in reader.connections}
         if 'radar_topic' not in config.explicit:
-            for topic in _not_radars(reader, path, config.radar.velocity_field):
+            for topic in _not_radars(reader, label, config.radar.velocity_field):
                 del topics[topic]
         chosen = select_topics(topics, config)
         roles = {topic: role for role, topic in chosen.items() if topic is not None}
@@ -675,7 +757,7 @@ def read_recording(path: str | Path, config: CalibConfig, *,
         first_error: DecodeError | None = None
         radar_frame: str | None = None
         other_radar: str | None = None
-        for connection, received_ns, msg in _messages(reader, connections, path):
+        for connection, received_ns, msg in _messages(reader, connections, label):
             if roles[connection.topic] == 'radar':
                 frame_id = str(getattr(msg.header, 'frame_id', '') or '')
                 keep = msgs.radar_frame_to_keep(frame_id, radar_frame, config)

@@ -510,6 +510,46 @@ def test_a_split_recording_without_metadata_reads_file_by_file(
     assert 'split_0.mcap' in str(info.value)
 
 
+def test_several_bags_of_one_recording_read_as_one(tmp_path: Path, ts: Any) -> None:
+    """A drive in two bags (a recorder restarted; the radar recorded at the roadside and
+    the poses in the vehicle): given together, in any order, they read as the one bag they
+    would have been; a bag given twice, or topics whose types differ, are refused."""
+    s = scene(n_frames=60, n_poses=200)
+    items = sorted(bag_messages(ts, s), key=lambda item: item[2])
+    whole = _write_items(tmp_path / 'whole', ts, items)
+    full = read_recording(whole, CalibConfig())
+    half = len(items) // 2
+    first = _write_items(tmp_path / 'first', ts, items[:half], storage='sqlite3')
+    second = _write_items(tmp_path / 'second', ts, items[half:])
+    radar = _write_items(tmp_path / 'radar', ts, [i for i in items if i[1] == m.POINTCLOUD2])
+    poses = _write_items(tmp_path / 'poses', ts, [i for i in items if i[1] != m.POINTCLOUD2])
+    for bags in ([first, second], [second, first], [poses, radar]):
+        seen: list[tuple[int, int]] = []
+        rec = read_recording(bags, CalibConfig(), progress=lambda d, t: seen.append((d, t)))
+        assert seen[-1] == (len(items), len(items))
+        np.testing.assert_array_equal(rec.frame_stamps_ns, full.frame_stamps_ns)
+        np.testing.assert_array_equal(rec.targets.positions_m, full.targets.positions_m)
+        np.testing.assert_array_equal(rec.vehicle.stamps_ns, full.vehicle.stamps_ns)
+        np.testing.assert_array_equal(rec.vehicle.positions_m, full.vehicle.positions_m)
+        assert rec.sources == full.sources
+        assert 'stamps_restarted' not in rec.counters
+    assert radar_topics([poses, radar]) == ['/radar/points']
+    with pytest.raises(BagReadError, match='is given twice'):
+        read_recording([first, second, tmp_path / 'first' / 'metadata.yaml'], CalibConfig())
+    with pytest.raises(BagReadError, match="'missing' does not exist"):
+        read_recording([first, 'missing'], CalibConfig())
+    other = _write_items(tmp_path / 'other', ts, [
+        ('/vehicle/fix', m.POINTCLOUD2, item[2], item[3]) for item in items
+        if item[1] == m.POINTCLOUD2][:3])
+    with pytest.raises(BagReadError, match='topic /vehicle/fix is .*NavSatFix in one bag'):
+        read_recording([first, other], CalibConfig())
+
+
+def _write_items(path: Path, ts: Any, items: list[Item], storage: str = 'mcap') -> Path:
+    write_bag(path, iter(items), storage=storage, typestore=ts)
+    return path
+
+
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_a_vendor_topic_with_a_broken_definition_leaves_the_rest_readable(
         tmp_path: Path, ts: Any, storage: str, caplog: pytest.LogCaptureFixture) -> None:
