@@ -45,6 +45,21 @@ class RadarConfig:
     max_targets_per_frame: int = _p(
         0, 'keep at most this many targets of each radar frame, evenly spread over its '
         'list (for dense imaging radars: time and memory); 0 = keep all', lo=0, hi=1000000)
+    # A 2-D radar (no elevation) shows nothing of its own tilt, which moves its position
+    # too (a held pitch of 8 deg: half a metre along the boresight); an inclinometer on the
+    # mount measures it to a tenth of a degree (a forty-ninth probe was told to measure it
+    # and had nowhere to enter it). A radar that measures elevation ignores these.
+    mount_roll_deg: float = _p(
+        0.0, 'roll of a 2-D radar (no elevation) measured at its mount, as the result\'s '
+        'roll (+ = its left side, +y, raised); used where mount_tilt_sigma_deg > 0 [deg]',
+        lo=-45.0, hi=45.0)
+    mount_pitch_deg: float = _p(
+        0.0, 'pitch of a 2-D radar measured at its mount, as the result\'s pitch (+ = '
+        'boresight tilted down); used where mount_tilt_sigma_deg > 0 [deg]',
+        lo=-45.0, hi=45.0)
+    mount_tilt_sigma_deg: float = _p(
+        0.0, '1-sigma of radar.mount_roll_deg and mount_pitch_deg; 0 = not measured (a 2-D '
+        'radar is then held level with 5 deg of uncertainty) [deg]', lo=0.0, hi=10.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

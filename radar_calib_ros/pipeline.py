@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.config import CalibConfig, RadarConfig
 from radar_calib_ros.core import associate, cluster, ground_plane, hypotheses, moving, polygon
 from radar_calib_ros.core import quality, refine, refine_noise, track, uncertainty
 from radar_calib_ros.core import velocity_folding
@@ -809,13 +809,36 @@ def _recording_hole_note(recording: Recording) -> str | None:
             'stopped and started again?): a pass driven then is not in the data.')
 
 
+def _planar_note(constant_mdeg: int | None, radar: RadarConfig) -> str:
+    """What a 2-D radar's result rests on: its tilt as measured at the mount, or held
+    level (``refine._with_mount_tilt``)."""
+    if constant_mdeg is not None:
+        seen = (f'The radar reports every target at one elevation ({constant_mdeg / 1000:.2f} '
+                'deg): it measures none (a 2-D radar, its driver writing a fixed value), and '
+                'its targets were taken as in its own plane.')
+    else:
+        seen = 'The radar reports no elevation (z = 0 for every target: a 2-D radar).'
+    altitude = 'its altitude comes only from the radial velocities (decimetres)'
+    if radar.mount_tilt_sigma_deg > 0.0:
+        return (f'{seen} Its roll and pitch are those measured at the mount '
+                f'(radar.mount_roll_deg {radar.mount_roll_deg:+.2f}, mount_pitch_deg '
+                f'{radar.mount_pitch_deg:+.2f}, 1 sigma {radar.mount_tilt_sigma_deg:.2f} deg, '
+                f'which joins the position\'s uncertainty); {altitude}.')
+    return (f'{seen} Its roll and pitch cannot be measured from its targets and are reported '
+            'level, with an uncertainty of degrees that also widens the position\'s; '
+            f'{altitude}. Measure the tilt at the mount and enter it as radar.mount_roll_deg, '
+            'radar.mount_pitch_deg and radar.mount_tilt_sigma_deg.')
+
+
 def _data_notes(recording: Recording, corrections: list[str],
-                fitted_offset_s: float | None = None) -> list[str]:
+                fitted_offset_s: float | None = None,
+                radar: RadarConfig = RadarConfig()) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
     source: ``corrections`` made on the way (a flipped radial-velocity sign, folded
     velocities), an Odometry twist that did not describe the vehicle's motion (or its
     speed), a radar without elevation, standalone GNSS fixes. ``fitted_offset_s``, the
-    final fit's clock offset, tells late fixes from a late Odometry."""
+    final fit's clock offset, tells late fixes from a late Odometry; ``radar`` says
+    whether a tilt was measured at the mount."""
     notes = list(corrections)
     zone = zone_note(recording.frame)
     if zone is not None:
@@ -935,20 +958,12 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'are where its tracker puts each object, not where the radar saw it: '
                      'record the radar\'s detections where it offers them.')
     constant_mdeg = recording.counters.get('radar_elevation_constant_mdeg')
-    if constant_mdeg is not None and not recording.has_elevation:
-        notes.append(f'The radar reports every target at one elevation '
-                     f'({constant_mdeg / 1000:.2f} deg): it measures none (a 2-D radar, '
-                     'its driver writing a fixed value), and its targets were taken as in '
-                     'its own plane. Its roll and pitch cannot be measured from its targets '
-                     'and are reported level, with an uncertainty of degrees that also widens '
-                     'the position\'s; its altitude comes only from the radial velocities '
-                     '(decimetres). Measure the tilt at the mount.')
-    elif not recording.has_elevation:
-        notes.append('The radar reports no elevation (z = 0 for every target: a 2-D radar): '
-                     'its roll and pitch cannot be measured from its targets and are reported '
-                     'level, with an uncertainty of degrees that also widens the position\'s; '
-                     'its altitude comes only from the radial velocities (decimetres). '
-                     'Measure the tilt at the mount.')
+    if not recording.has_elevation:
+        notes.append(_planar_note(constant_mdeg, radar))
+    elif radar.mount_tilt_sigma_deg > 0.0:
+        notes.append('radar.mount_roll_deg and mount_pitch_deg were not used: this radar '
+                     'measures elevation, and its targets and the road plane give its roll '
+                     'and pitch (compare the result with them).')
     fixes = recording.counters.get('fixes', 0)
     # shares among the fixes the track rests on (degraded ones left out are not)
     used, standalone, sbas = recording.fix_status_counts
@@ -1852,8 +1867,8 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
         if folding is not None:
             report.extra['radial_velocity_fold_period_mps'] = folding.period_mps
         notes = _data_notes(recording, corrections,
-                            current.time_offset_s if refinement is not None else None
-                            ) + _clock_notes(recording, config)
+                            current.time_offset_s if refinement is not None else None,
+                            config.radar) + _clock_notes(recording, config)
         if notes:
             # only when there are some: an empty list in result.yaml has no parameter type,
             # and a node declaring its parameters from the file would refuse it

@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from radar_calib_ros import pipeline
-from radar_calib_ros.config import CalibConfig
+from radar_calib_ros.config import CalibConfig, RadarConfig
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.types import Extrinsics, HypothesisSelection
 
@@ -282,6 +282,15 @@ def test_a_2d_radar_is_named_in_the_advice() -> None:
                                   + np.array([0.0, 0.0, -1.5]))
     tilted = dataclasses.replace(flat, targets=targets)
     assert tilted.has_elevation and not _data_notes(tilted, [])
+    # a tilt measured at the mount is used only by a radar without elevation, and said
+    measured = RadarConfig(mount_roll_deg=-1.25, mount_pitch_deg=7.5, mount_tilt_sigma_deg=0.2)
+    note = ' '.join(_data_notes(flat, [], None, measured))
+    assert 'measured at the mount (radar.mount_roll_deg -1.25, mount_pitch_deg +7.50' in note
+    assert 'Measure the tilt' not in note
+    assert 'Measure the tilt at the mount and enter it as radar.mount_roll_deg' in ' '.join(
+        _data_notes(flat, []))
+    assert any('mount_pitch_deg were not used' in n
+               for n in _data_notes(tilted, [], None, measured))
 
 
 def test_a_failed_stage_6_on_a_plane_near_the_radar_is_tried_on_every_target(
@@ -421,6 +430,20 @@ def test_a_2d_radar_calibrates_with_its_tilt_in_the_uncertainty(drive: Any) -> N
     # decimetres by the radial velocities
     assert errors['vertical_m'] < 2.0 * sigma['vertical_m'] and errors['vertical_m'] < 0.6
     assert any('no elevation' in n for n in cal['quality']['advice'])
+    # ... and with its tilt measured at the mount (0.2 deg), which it holds: the half metre
+    # along the boresight is gone, and the uncertainty narrows with it
+    roll, pitch = summary.truth['rpy_deg'][:2]
+    mounted = dataclasses.replace(config, radar=dataclasses.replace(
+        config.radar, mount_roll_deg=roll + 0.1, mount_pitch_deg=pitch - 0.1,
+        mount_tilt_sigma_deg=0.2))
+    cal = run_calibration(planar, mounted).calibration(mounted)
+    measured = calibration_errors(cal, summary.truth)
+    assert cal['rpy_deg'][:2] == pytest.approx([roll + 0.1, pitch - 0.1], abs=0.01)
+    assert measured['horizontal_m'] < 0.5 * errors['horizontal_m']
+    assert measured['horizontal_m'] < 2.0 * math.hypot(
+        cal['quality']['sigma']['along_boresight_m'],
+        cal['quality']['sigma']['across_boresight_m'])
+    assert measured['rotation_deg'] < 0.5 < cal['quality']['sigma']['rotation_deg'] * 2.0 < 1.5
 
 
 @pytest.mark.parametrize('axis, likely', [(1, 'the azimuths (y)'), (2, 'the elevations (z)')])

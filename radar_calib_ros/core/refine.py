@@ -217,6 +217,8 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
     # The products here are tall and skinny (tens of thousands of rows, ~20 columns):
     # memory-bound, and multi-threaded BLAS only spins on a busy machine (measured 10x
     # slower with 2 cores shared). One thread is as fast when idle and far faster when not.
+    if not recording.has_elevation:
+        initial = _with_mount_tilt(initial, config)
     with threadpool_limits(limits=1, user_api='blas'):
         tracked = with_static_targets(initial, recording, tracked, config)
         start_sigma = _START_SIGMA_M
@@ -312,6 +314,25 @@ _HELD_START_SIGMA_M = 0.05
 #: The drives all run along the boresight (``uncertainty.near_axis``) when this share of
 #: the accepted tracks' targets are seen so.
 _ALONG_BORESIGHT_SHARE = 0.9
+
+
+def _with_mount_tilt(initial: Extrinsics, config: CalibConfig) -> Extrinsics:
+    """A 2-D radar's start with the roll and pitch measured at its mount (``radar.mount_*``),
+    its yaw kept; unchanged where none was measured. The fit then holds them there, as it
+    holds them level otherwise."""
+    if config.radar.mount_tilt_sigma_deg <= 0.0:
+        return initial
+    _, _, yaw = Rotation.from_matrix(initial.rotation).as_euler('xyz')
+    rotation = Rotation.from_euler('xyz', [math.radians(config.radar.mount_roll_deg),
+                                           math.radians(config.radar.mount_pitch_deg), yaw])
+    return Extrinsics(rotation.as_matrix(), np.asarray(initial.translation_m, float),
+                      float(initial.time_offset_s))
+
+
+def _planar_tilt_sigma_deg(config: CalibConfig) -> float:
+    """1-sigma of a 2-D radar's held roll and pitch: as measured at its mount, or
+    ``_PLANAR_TILT_SIGMA_DEG`` where it was not."""
+    return config.radar.mount_tilt_sigma_deg or _PLANAR_TILT_SIGMA_DEG
 
 
 def _drives_along_boresight(est: Extrinsics, recording: Recording, tracked: TrackedTargets,
@@ -795,13 +816,14 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # no target gives height information above), and those come from the start and
         # second-order effects only. Say so in the covariance rather than report the
         # jackknife's agreement on values nothing measured.
-        cov7 = uncertainty.add_tilt(cov7, math.radians(_PLANAR_TILT_SIGMA_DEG))
+        tilt_sigma_deg = _planar_tilt_sigma_deg(config)
+        cov7 = uncertainty.add_tilt(cov7, math.radians(tilt_sigma_deg))
         cov7[5, 5] += _PLANAR_HEIGHT_SIGMA_M ** 2
         for moved in tilted_translations or []:
             shift = (np.asarray(moved, float) - est.translation_m) * (
-                _PLANAR_TILT_SIGMA_DEG / _PLANAR_PROBE_DEG)
+                tilt_sigma_deg / _PLANAR_PROBE_DEG)
             _LOG.debug('2-D radar: %.1f deg of held tilt moves the position by %s m',
-                       _PLANAR_TILT_SIGMA_DEG, np.round(shift, 3))
+                       tilt_sigma_deg, np.round(shift, 3))
             cov7[3:6, 3:6] += np.outer(shift, shift)
     model_difference = (np.zeros(3) if alternative_translation is None
                         else np.asarray(alternative_translation, float) - est.translation_m)
