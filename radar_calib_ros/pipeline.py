@@ -1437,6 +1437,18 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
     wide = [c for c in companies if c.in_view >= 2]
     # the most passes any of them had company on
     best = max(wide, key=lambda c: (c.met, c.met / c.in_view))
+    travel = _frame_travel(recording)[0]
+    if travel > _FRAME_TRAVEL_M:
+        # A vehicle that drives metres between frames breaks into short tracks whose
+        # hypotheses scatter, so it keeps no company even in view: a forty-fifth probe's
+        # highway drive with no other road user at all (22 m/s at 10 Hz) was told its
+        # tracks were other road users'. The note on its travel follows the reason.
+        return (f'No track follows the calibration vehicle on most of its passes: of the '
+                f'{n_hyps} tracks that fit a stretch of its drive, none, taken for the '
+                f'vehicle\'s, has tracks moving with it on more than {best.met} of the '
+                f'{best.in_view} passes it then makes through the view. At {travel:.1f} m '
+                'between radar frames its targets may have broken into tracks too short to '
+                'agree (or it was never in the radar\'s view). In detail:')
     return (f'The calibration vehicle was most likely never in the radar\'s view: of the '
             f'{n_hyps} tracks that fit a stretch of its drive, '
             'none, taken for the vehicle\'s, has tracks moving with it (within '
@@ -1503,6 +1515,19 @@ _GATE_BESIDES_TRAVEL_M = 2.5
 _FAST_ACCUMULATE_FRAMES = 2
 
 
+def _frame_travel(recording: Recording) -> tuple[float, float, float]:
+    """How far the vehicle drives between radar frames when fast [m] (0 where it never
+    moves), that speed (the 90th percentile while it moves) [m/s] and the frame interval [s]."""
+    stamps = recording.frame_stamps_ns
+    speed = np.hypot(*recording.vehicle.velocities_mps[:, :2].T)
+    moving = speed[speed > 1.0]
+    if stamps.size < 2 or moving.size == 0:
+        return 0.0, 0.0, 0.0
+    frame_s = float(np.median(np.diff(stamps))) * 1e-9
+    fast = float(np.percentile(moving, 90.0))
+    return fast * frame_s, fast, frame_s
+
+
 def fast_vehicle_config(recording: Recording, config: CalibConfig
                         ) -> tuple[CalibConfig, str] | None:
     """``config`` with the clustering and association fitted to a vehicle that moves more
@@ -1518,14 +1543,7 @@ def fast_vehicle_config(recording: Recording, config: CalibConfig
     and a gate of the travel plus 2.5 m. Fast is the 90th percentile of the vehicle's
     speed while it moves; only ever a wider gate and fewer frames than ``config``'s.
     """
-    stamps = recording.frame_stamps_ns
-    speed = np.hypot(*recording.vehicle.velocities_mps[:, :2].T)
-    moving = speed[speed > 1.0]
-    if stamps.size < 2 or moving.size == 0:
-        return None
-    frame_s = float(np.median(np.diff(stamps))) * 1e-9
-    fast = float(np.percentile(moving, 90.0))
-    travel = fast * frame_s
+    travel, fast, frame_s = _frame_travel(recording)
     if not travel > _FRAME_TRAVEL_M:
         return None
     settings = {'cluster.accumulate_frames': min(config.cluster.accumulate_frames,
