@@ -454,9 +454,15 @@ class _ChainReader:
 
     def __init__(self, paths: list[Path], stack: ExitStack) -> None:
         self._parts = [stack.enter_context(_open_reader(path)) for path in paths]
+        first: dict[str, tuple[str, Path]] = {}
         for path, part in zip(paths, self._parts):
             for connection in part.connections:
-                _check_same_type(connection, self._parts, paths)
+                msgtype, where = first.setdefault(connection.topic, (connection.msgtype, path))
+                if msgtype != connection.msgtype:
+                    raise BagReadError(
+                        f'topic {connection.topic} is {msgtype} in {str(where)!r} and '
+                        f'{connection.msgtype} in {str(path)!r}: bags read as one recording '
+                        'must agree on their topics\' types')
         self.connections: list[Any] = [c for part in self._parts for c in part.connections]
         self._owner = {id(c): part for part in self._parts for c in part.connections}
         self._current: Any = self._parts[0]
@@ -476,17 +482,6 @@ class _ChainReader:
 
     def close(self) -> None:
         pass    # the parts close with the ExitStack that opened them
-
-
-def _check_same_type(connection: Any, parts: list[Any], paths: list[Path]) -> None:
-    """A topic that several bags hold must have one message type in all of them."""
-    for path, part in zip(paths, parts):
-        for other in part.connections:
-            if other.topic == connection.topic and other.msgtype != connection.msgtype:
-                raise BagReadError(
-                    f'topic {connection.topic} is {connection.msgtype} in one bag and '
-                    f'{other.msgtype} in {str(path)!r}: bags read as one recording must '
-                    'agree on their topics\' types')
 
 
 def _bag_paths(path: BagPaths) -> list[Path]:
