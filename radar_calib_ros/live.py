@@ -1016,6 +1016,9 @@ def _encode_samples(builder: RecordingBuilder, config: CalibConfig,
     navsat_topic = '/' + config.navsat_topic.lstrip('/')
     odom_topic = '/' + config.odom_topic.lstrip('/')
     velocity_field = config.radar.velocity_field or 'velocity'
+    # the fixes' own frame is not kept, only whether it named an antenna (the offline
+    # tool's hint on vehicle.ref_height)
+    fix_frame = 'gnss' if builder.counters.get('fix_frame_antenna') else 'base_link'
     for sample in builder.samples():
         if isinstance(sample, RadarFrame):
             msg = msgs.encode_pointcloud(store, sample.stamp_ns, config.radar.frame_id,
@@ -1024,7 +1027,7 @@ def _encode_samples(builder: RecordingBuilder, config: CalibConfig,
             yield (radar_topic, msgs.POINTCLOUD2,
                    radar_received.get(sample.stamp_ns, sample.stamp_ns), msg)
         elif isinstance(sample, FixSample):
-            msg = msgs.encode_navsatfix(store, sample.stamp_ns, 'gnss', sample.lat_deg,
+            msg = msgs.encode_navsatfix(store, sample.stamp_ns, fix_frame, sample.lat_deg,
                                         sample.lon_deg, sample.alt_m, status=sample.status,
                                         position_sigma_m=sample.position_sigma_m)
             yield (navsat_topic, msgs.NAVSATFIX,

@@ -663,6 +663,31 @@ def _fix_grade_failure_note(recording: Recording) -> list[str]:
             'than that. Calibrate with an RTK fix.']
 
 
+#: Below this vehicle.ref_height [m] the pose point is an axle's or the ground's, not a
+#: roof antenna's (a car's roof is 1.4-1.6 m up).
+_ANTENNA_MIN_HEIGHT_M = 1.0
+
+
+def _antenna_height_note(recording: Recording, config: CalibConfig) -> str | None:
+    """A note where the fixes' header frame_id names a GNSS antenna ('gnss', 'gps_link')
+    while vehicle.ref_height puts the pose point below any roof, else None.
+
+    Why: the radar's altitude rests one to one on the height of the point the poses
+    describe, which nothing in the data shows: a fifty-first probe's roof-antenna fixes
+    (frame 'gnss') with a rear axle's ref_height put the radar 1.1 m high at a reported
+    0.35 m, with nothing said. The frame's name is the one hint the data hold."""
+    if (not recording.counters.get('fix_frame_antenna') or 'navsat' not in recording.sources
+            or config.vehicle.ref_height >= _ANTENNA_MIN_HEIGHT_M):
+        return None
+    return ('The vehicle\'s fixes name a GNSS antenna\'s frame (header.frame_id), yet '
+            f'vehicle.ref_height puts the point they describe {config.vehicle.ref_height:.2f} '
+            'm above the road, an axle\'s height: the radar\'s altitude rests on it one to '
+            'one. If the fixes are the antenna\'s position (not moved to the vehicle\'s '
+            'reference point by the receiver), set vehicle.ref_height to the antenna\'s '
+            'height above the road (a roof antenna: about 1.5 m) and rear_overhang to its '
+            'distance ahead of the rear bumper.')
+
+
 def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:
     """Notes on the radar's clock: its stamps far off the poses' or jumping against the
     recorder's clock (counters of ``clocks.receipt_checks``, bags only), and radar
@@ -1887,6 +1912,9 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
         notes = _data_notes(recording, corrections,
                             current.time_offset_s if refinement is not None else None,
                             config.radar) + _clock_notes(recording, config)
+        antenna = _antenna_height_note(recording, config)
+        if antenna is not None:
+            notes.append(antenna)
         if notes:
             # only when there are some: an empty list in result.yaml has no parameter type,
             # and a node declaring its parameters from the file would refuse it

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -262,6 +263,12 @@ def _narrowed(values: F64) -> NDArray[np.floating[Any]]:
     return narrow if np.array_equal(narrow, values, equal_nan=True) else values
 
 
+#: A NavSatFix header frame_id that names a GNSS antenna ('gnss', 'gps_link', 'antenna',
+#: 'navsat_link'): the fixes are then most likely the antenna's position, whose height
+#: above the road ``vehicle.ref_height`` must give (``pipeline._antenna_height_note``).
+_ANTENNA_FRAME = re.compile(r'gnss|gps|antenna|navsat', re.IGNORECASE)
+
+
 class RecordingBuilder:
     """Collects decoded samples (in any order) and builds a :class:`Recording`.
 
@@ -363,6 +370,10 @@ class RecordingBuilder:
             self.counters['fixes_invalid'] += 1
             self.counters['fixes_null_island'] += 1
             return False
+        if fix.frame_id and 'fix_frame_checked' not in self.counters:
+            self.counters['fix_frame_checked'] = 1
+            if _ANTENNA_FRAME.search(fix.frame_id):
+                self.counters['fix_frame_antenna'] = 1
         if fix.status == 0:  # STATUS_FIX: no RTK, SBAS or GBAS augmentation
             self.counters['fixes_unaugmented'] += 1
         elif fix.status == 1:  # STATUS_SBAS_FIX

@@ -56,8 +56,8 @@ class RadarFrame:
 @dataclass(frozen=True, slots=True)
 class FixSample:
     """One NavSatFix: WGS 84 latitude/longitude [deg], ellipsoidal altitude [m], its
-    status, and its 1-sigma (horizontal, vertical) from ``position_covariance`` [m] (NaN
-    when the covariance type is unknown)."""
+    status, its 1-sigma (horizontal, vertical) from ``position_covariance`` [m] (NaN
+    when the covariance type is unknown) and its header frame_id."""
 
     stamp_ns: int
     lat_deg: float
@@ -65,6 +65,7 @@ class FixSample:
     alt_m: float
     status: int
     position_sigma_m: tuple[float, float] = (math.nan, math.nan)
+    frame_id: str = ''
 
 
 @dataclass(frozen=True, slots=True)

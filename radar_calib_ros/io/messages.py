@@ -411,7 +411,8 @@ def decode_navsatfix(msg: Any) -> FixSample:
         if len(c) == 9 and all(math.isfinite(v) for v in c):
             sigma = (math.sqrt(max(0.5 * (c[0] + c[4]), 0.0)), math.sqrt(max(c[8], 0.0)))
     return FixSample(stamp_ns(msg.header), float(msg.latitude), float(msg.longitude),
-                     float(msg.altitude), int(msg.status.status), sigma)
+                     float(msg.altitude), int(msg.status.status), sigma,
+                     str(getattr(msg.header, 'frame_id', '') or ''))
 
 
 def decode_odometry(msg: Any) -> OdomSample:

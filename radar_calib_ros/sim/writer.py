@@ -129,7 +129,7 @@ def write_recording(path: Path, *, targets: RadarTargets, radar_stamps_ns: np.nd
                 yield radar.topic, msgs.POINTCLOUD2, receive, msg
             elif topic == 1:
                 msg = msgs.encode_navsatfix(
-                    store, int(fix_stamps[i]), 'gnss', float(gnss.lat_deg[i]),
+                    store, int(fix_stamps[i]), 'base_link', float(gnss.lat_deg[i]),
                     float(gnss.lon_deg[i]), float(gnss.alt_m[i]), int(gnss.status[i]),
                     0.02 if gnss.status[i] >= 0 else 5.0)
                 yield NAVSAT_TOPIC, msgs.NAVSATFIX, receive, msg
