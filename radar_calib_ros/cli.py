@@ -148,9 +148,13 @@ def summary_lines(calibration: dict[str, Any], stage_times: dict[str, float] | N
         # The data cannot show which point of the vehicle its pose describes: a roof
         # antenna's pose with a rear axle's vehicle.* put a thirty-first probe's radar 1.2 m
         # high, inside nothing and unnamed. Said beside the altitude, so that it is read.
+        side = ('' if vehicle.ref_left == 0.0 else
+                f', {abs(vehicle.ref_left):.2f} m {"left" if vehicle.ref_left > 0 else "right"}'
+                ' of the centre line')
         lines.insert(2, f'  reference  pose point {vehicle.ref_height:.2f} m above the road, '
-                     f'{vehicle.rear_overhang:.2f} m ahead of the rear bumper '
-                     '(vehicle.ref_height, rear_overhang): the altitude rests on it')
+                     f'{vehicle.rear_overhang:.2f} m ahead of the rear bumper{side} '
+                     '(vehicle.ref_height, rear_overhang'
+                     + (', ref_left' if side else '') + '): the altitude rests on it')
     prior = q.get('reflection_height_prior_m')
     if isinstance(prior, list) and len(prior) == 2:
         lines.insert(3 if vehicle is not None else 2,

@@ -89,6 +89,9 @@ class VehicleConfig:
     rear_overhang: float = _p(1.0, 'reference point to rear bumper, along -x [m]',
                               lo=-5.0, hi=25.0)
     ref_height: float = _p(0.35, 'reference point above the ground [m]', lo=-1.0, hi=5.0)
+    ref_left: float = _p(0.0, 'reference point to the left of the vehicle\'s centre line (an '
+                         'off-centre GNSS antenna; negative: to the right) [m]',
+                         lo=-3.0, hi=3.0)
     odom_is_utm: bool = _p(False, 'Odometry position is UTM (used only without NavSatFix)')
     min_heading_speed: float = _p(
         1.0, 'NavSatFix only: slowest speed whose course over ground gives heading [m/s]',

@@ -34,7 +34,7 @@ from radar_calib_ros.io.geo import LocalFrame
 from radar_calib_ros.types import (
     F64, I64, FixSample, OdomSample, PoseSamples, RadarFrame, RadarView, Targets, VehicleTrack)
 from radar_calib_ros.vehicle_track import (
-    RTK_DECLARED_SIGMA_M, build_vehicle_track, declared_fix_sigma)
+    RTK_DECLARED_SIGMA_M, build_vehicle_track, declared_fix_sigma, on_centre_line)
 
 __all__ = ['NOMINAL_FIX_SIGMA_M', 'RTK_DECLARED_SIGMA_M', 'Recording', 'RecordingBuilder',
            'interpolate_poses']
@@ -834,10 +834,10 @@ class RecordingBuilder:
         (``vehicle_track.build_vehicle_track``; what its checks find goes to ``counters``)."""
         cfg = self._config
         odoms = [_odom_sample(o) for o in sorted(self._odoms, key=lambda o: o[0])]
-        return build_vehicle_track(*self._fix_rows(), odoms, epsg=cfg.world.epsg,
-                                   odom_is_utm=cfg.vehicle.odom_is_utm,
-                                   min_heading_speed=cfg.vehicle.min_heading_speed,
-                                   counters=self.counters)
+        frame, vehicle = build_vehicle_track(
+            *self._fix_rows(), odoms, epsg=cfg.world.epsg, odom_is_utm=cfg.vehicle.odom_is_utm,
+            min_heading_speed=cfg.vehicle.min_heading_speed, counters=self.counters)
+        return frame, on_centre_line(vehicle, cfg.vehicle.ref_left)
 
 
 #: Radar messages under one stamp are whole scans taken apart in time when their moving

@@ -298,6 +298,26 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
     return frame, vehicle
 
 
+def on_centre_line(vehicle: VehicleTrack, ref_left_m: float) -> VehicleTrack:
+    """The track of the point of the vehicle's centre line beside its reference point, where
+    that lies ``ref_left_m`` to the left of it (``vehicle.ref_left``); unchanged at 0.
+
+    Why: the box, the reflection profile's mirror symmetry and the paper's figures all
+    take the reference point on the centre line; a GNSS antenna 0.2-0.4 m off it (a
+    fifty-third probe's) moved the radar 0.4-1.1 m, and no parameter could say so. The
+    velocity is the rigid body's at that point (the yaw rate times the offset, along the
+    heading)."""
+    if ref_left_m == 0.0:
+        return vehicle
+    c, s = np.cos(vehicle.yaw_rad), np.sin(vehicle.yaw_rad)
+    zero = np.zeros_like(c)
+    positions = vehicle.positions_m - ref_left_m * np.column_stack([-s, c, zero])
+    velocities = vehicle.velocities_mps + (ref_left_m * vehicle.yaw_rate_rps)[:, None] * (
+        np.column_stack([c, s, zero]))
+    return VehicleTrack(vehicle.stamps_ns, positions, vehicle.yaw_rad, velocities,
+                        vehicle.yaw_rate_rps)
+
+
 def declared_fix_sigma(fix_rows: F64) -> tuple[float, float] | None:
     """Median declared 1-sigma of the fixes ``fix_rows`` (as ``build_vehicle_track`` takes
     them; horizontal, vertical), None if none; the degraded ones the track leaves out

@@ -570,6 +570,11 @@ def test_the_summary_says_which_point_of_the_vehicle_the_altitude_rests_on() -> 
     assert lines[1].startswith('  position') and lines[2] == (
         '  reference  pose point 1.73 m above the road, 2.55 m ahead of the rear bumper '
         '(vehicle.ref_height, rear_overhang): the altitude rests on it')
+    # an antenna to one side of the centre line (vehicle.ref_left)
+    right = dataclasses.replace(vehicle, ref_left=-0.4)
+    assert summary_lines(calibration, vehicle=right)[2].endswith(
+        '2.55 m ahead of the rear bumper, 0.40 m right of the centre line (vehicle.ref_height, '
+        'rear_overhang, ref_left): the altitude rests on it')
     # and the vehicle's mean reflection height it assumed (a fortieth probe's van: 0.7 m low,
     # nothing said about heights)
     calibration['quality'] = {'reflection_height_prior_m': [0.35, 0.3]}

@@ -392,6 +392,24 @@ def test_a_start_tilted_by_the_ground_plane_is_named(drive: Any,
     assert len(named) == 1 and '12.3 deg off and the radar 6.6 m lower' in named[0], notes
 
 
+def test_a_sloped_road_is_not_called_a_wrong_ground_plane() -> None:
+    """Where stage 4's plane lies as tilted in the world (under the final fit) as the
+    paper's tilt was off, the road is on a slope, not cluttered: a fifty-second probe's
+    junction on a 6-7 % slope was told its ground plane 'was not the road's'."""
+    from scipy.spatial.transform import Rotation
+
+    from radar_calib_ros.pipeline import _plane_moved_note, _plane_tilt_deg
+    turned = Rotation.from_euler('xyz', [0.0, 3.3, 40.0], degrees=True).as_matrix()
+    assert _plane_tilt_deg(np.array([0.0, 0.0, 1.0]), turned) == pytest.approx(3.3)
+    assert _plane_tilt_deg(turned.T @ np.array([0.0, 0.0, -1.0]), turned) == pytest.approx(0)
+    plane = {'tilt_deg': 3.3, 'vertical_m': -2.5}
+    sloped = _plane_moved_note(plane, 3.1, clutter=False)
+    assert 'the radar 2.5 m higher' in sloped and 'the road in view is not level' in sloped
+    assert 'a 5 % slope' in sloped and "was not the road's" not in sloped
+    cluttered = _plane_moved_note(plane, 0.2, clutter=True)
+    assert "was not the road's (the clutter named above)" in cluttered
+
+
 def test_thinning_each_frame_keeps_the_calibration(drive: Any) -> None:
     """``radar.max_targets_per_frame`` at half of a frame's targets (every second one of
     each frame, offline as in the node): the same passes and tracks to within one, and the

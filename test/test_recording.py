@@ -1,6 +1,7 @@
 """recording: RecordingBuilder (frames, fixes, odometry, headings) and interpolate_poses."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -2107,3 +2108,42 @@ def test_targets_all_at_one_elevation_are_a_2d_radars() -> None:
     quantised = built(np.round(rng.normal(-4.0, 1.5, 400) / 3.0) * 3.0)
     assert 'radar_elevation_constant_mdeg' not in quantised.counters
     assert quantised.has_elevation
+
+
+def test_a_reference_point_off_the_centre_line_is_moved_onto_it() -> None:
+    """``vehicle.ref_left``: fixes of an antenna 0.4 m left of the centre line give the
+    track of the centre line (a fifty-third probe's off-centre antenna moved the radar
+    0.4-1.1 m with no parameter to say so); the velocity is the rigid body's there."""
+    from radar_calib_ros.io.geo import LocalFrame
+    from radar_calib_ros.types import FixSample, VehicleTrack
+    from radar_calib_ros.vehicle_track import on_centre_line
+
+    t0 = 1_720_000_000_000_000_000
+    frame = LocalFrame.at(48.1, 11.5)
+
+    def track(left_m: float, ref_left: float) -> Any:
+        """The vehicle's positions in the frame of the first fix on the centre line (each
+        recording's local frame starts at its own first fix)."""
+        config = CalibConfig()
+        config = dataclasses.replace(config, vehicle=dataclasses.replace(
+            config.vehicle, ref_left=ref_left))
+        builder = RecordingBuilder(config)
+        for k in range(150):
+            builder.add_radar_frame(RadarFrame(t0 + int(k / 15.0 * 1e9),
+                                               np.array([[20.0, 1.0, 0.0]]), np.ones(1)))
+        for k in range(101):   # eastbound at 10 m/s: left is north
+            lat, lon, alt = frame.local_to_geodetic(np.array([[1.0 * k, left_m, 0.0]]))
+            builder.add_fix(FixSample(t0 + int(k * 0.1e9), lat[0], lon[0], alt[0], 2))
+        rec = builder.build()
+        return frame.geodetic_to_local(*rec.frame.local_to_geodetic(rec.vehicle.positions_m))
+
+    centre = track(0.0, 0.0)
+    np.testing.assert_allclose(track(0.4, 0.4), centre, atol=1e-3)
+    assert np.abs(track(0.4, 0.0)[:, 1] - centre[:, 1]).min() > 0.39
+    # turning at 0.5 rad/s: the centre line's point 0.4 m right of the reference moves
+    # 0.2 m/s faster along the heading (the turn is to the left)
+    turning = VehicleTrack(np.array([0, 1], np.int64), np.zeros((2, 3)), np.zeros(2),
+                           np.tile([10.0, 0.0, 0.0], (2, 1)), np.full(2, 0.5))
+    np.testing.assert_allclose(on_centre_line(turning, 0.4).velocities_mps[:, 0], 10.2)
+    np.testing.assert_allclose(on_centre_line(turning, 0.4).positions_m[:, 1], -0.4)
+    assert on_centre_line(turning, 0.0) is turning
