@@ -676,7 +676,8 @@ def _antenna_height_note(recording: Recording, config: CalibConfig) -> str | Non
     describe, which nothing in the data shows: a fifty-first probe's roof-antenna fixes
     (frame 'gnss') with a rear axle's ref_height put the radar 1.1 m high at a reported
     0.35 m, with nothing said. The frame's name is the one hint the data hold."""
-    if (not recording.counters.get('fix_frame_antenna') or 'navsat' not in recording.sources
+    # (the fixes place the vehicle wherever there are any, in the node as offline)
+    if (not recording.counters.get('fix_frame_antenna')
             or config.vehicle.ref_height >= _ANTENNA_MIN_HEIGHT_M):
         return None
     return ('The vehicle\'s fixes name a GNSS antenna\'s frame (header.frame_id), yet '

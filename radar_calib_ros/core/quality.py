@@ -422,8 +422,9 @@ def _box_named(misfit_m: float, inlier_ratio: float) -> bool:
 #: Beyond this distance along the vehicle between the middle of its targets (front and
 #: rear views averaged) and the middle of the box vehicle.* describe [m], the advice asks
 #: whether the poses' reference point is where vehicle.rear_overhang says. With the right
-#: description our simulator's car centres 0.2 m ahead; with rear_overhang 1.4 m too
-#: long or short, 1.3 m ahead or 1.0 m behind (the final fit's gate keeps it near the box).
+#: description our simulator's cars centre 0.1 m ahead (interior) or behind (skin); with
+#: rear_overhang 1.4 m too long or short, 1.3 m ahead or 1.0 m behind (the final fit's
+#: gate keeps them near the box).
 _OFF_CENTRE_M = 0.7
 #: Fewest fitted targets of the vehicle seen from its front half, and from its rear half.
 _OFF_CENTRE_TARGETS = 100
