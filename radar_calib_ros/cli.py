@@ -279,7 +279,8 @@ def cmd_calibrate(args: argparse.Namespace, out: TextIO) -> int:
     return 0
 
 
-def _ground_truth(bag: BagPaths, radar_frame: str | None = None) -> dict[str, Any] | None:
+def _ground_truth(bags: Sequence[str], radar_frame: str | None = None
+                  ) -> dict[str, Any] | None:
     """The simulator's ground truth next to a bag (the directory, or a metadata.yaml's
     directory) of the radar in ``radar_frame``, or None; a broken one is skipped with a
     warning, never used silently.
@@ -289,7 +290,7 @@ def _ground_truth(bag: BagPaths, radar_frame: str | None = None) -> dict[str, An
     N9), or would have with the wrong one."""
     from radar_calib_ros.groundtruth import load_ground_truth
     # of several bags of one recording, the first's (a simulator writes one per recording)
-    path = Path(bag) if isinstance(bag, (str, Path)) else Path(bag[0])
+    path = Path(bags[0])
     try:
         return load_ground_truth(path if path.is_dir() else path.parent,
                                  None if radar_frame is None else radar_frame.lstrip('/'))
@@ -472,8 +473,7 @@ _BAG_FILE_SUFFIXES = ('.mcap', '.db3', '.db3-wal', '.db3-shm')
 
 
 def _refuse_overwriting_inputs(outputs: dict[str, str | None],
-                               inputs: dict[str, str | None],
-                               bag: BagPaths | None) -> None:
+                               inputs: dict[str, str | None], bags: Sequence[str]) -> None:
     """ResultFileError (exit 2) before the work when an output would replace an input (the
     parameters or calibration file, a file of the bag) or another output: a probe's
     ``--output site.yaml`` with ``--params site.yaml`` replaced the site's parameters by
@@ -485,14 +485,14 @@ def _refuse_overwriting_inputs(outputs: dict[str, str | None],
         return Path(os.path.realpath(path))
 
     bag_files: dict[Path, str] = {}
-    for one in [bag] if isinstance(bag, (str, Path)) else bag or []:
-        root = same(str(one))
+    for one in bags:
+        root = same(one)
         if root.name == 'metadata.yaml' and root.is_file():
             root = root.parent    # the bag given by its metadata.yaml
         if root.is_file():
-            bag_files[root] = str(one)
+            bag_files[root] = one
         elif root.is_dir():
-            bag_files.update({p: str(one) for p in root.iterdir() if p.name == 'metadata.yaml'
+            bag_files.update({p: one for p in root.iterdir() if p.name == 'metadata.yaml'
                               or p.name.endswith(_BAG_FILE_SUFFIXES)})
     taken: dict[Path, str] = {}
     for flag, path in outputs.items():

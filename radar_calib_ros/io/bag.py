@@ -373,7 +373,34 @@ def _split_order(file: Path) -> tuple[str, int, str]:
     return (stem, int(index), file.suffix) if index.isdigit() else (file.stem, -1, file.suffix)
 
 
-class _SplitReader(_JazzyDecoding):
+class _PartsReader:
+    """Readers read one after the other as one: their connections together, each message
+    read and decoded by the reader that holds it (a bag's AnyReader with its embedded
+    definitions: ``_messages`` deserialises each message as it is yielded)."""
+
+    def __init__(self, parts: list[Any]) -> None:
+        self._parts = parts
+        self.connections: list[Any] = [c for part in parts for c in part.connections]
+        self._owner = {id(c): part for part in parts for c in part.connections}
+        self._current: Any = parts[0]
+
+    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, Any]]:
+        wanted = list(connections) or self.connections
+        for part in self._parts:
+            own = [c for c in wanted if self._owner.get(id(c)) is part]
+            if own:
+                self._current = part
+                yield from part.messages(own)
+
+    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
+        return self._current.deserialize(rawdata, msgtype)
+
+    def close(self) -> None:
+        for part in self._parts:
+            part.close()
+
+
+class _SplitReader(_PartsReader):
     """A split recording without its metadata.yaml (rosbag2 writes it when the recording
     ends: a recorder that lost power leaves ``name_0.mcap``, ``name_1.mcap``, ... and the
     last one cut short). Each storage file is read on its own (``_PlainReader``; one cut
@@ -383,8 +410,7 @@ class _SplitReader(_JazzyDecoding):
     user's."""
 
     def __init__(self, path: Path, damaged: str | None = None) -> None:
-        super().__init__()
-        self._parts: list[Any] = []
+        parts: list[Any] = []
         files = _storage_files(path)
         if damaged is None:
             _LOG.warning('%r has no metadata.yaml (a split recording interrupted before it '
@@ -401,15 +427,15 @@ class _SplitReader(_JazzyDecoding):
             for file in files:
                 part = self._open_part(file)
                 if part is not None:
-                    self._parts.append(part)
+                    parts.append(part)
         except BaseException:
-            self.close()
+            for part in parts:
+                part.close()
             raise
-        if not self._parts:
+        if not parts:
             raise BagReadError(f'{str(path)!r} has no metadata.yaml and none of its '
                                f'{len(files)} storage files holds a whole message')
-        self.connections: list[Any] = [c for part in self._parts for c in part.connections]
-        self._owner = {id(c): part for part in self._parts for c in part.connections}
+        super().__init__(parts)
 
     @staticmethod
     def _open_part(file: Path) -> Any:
@@ -429,19 +455,8 @@ class _SplitReader(_JazzyDecoding):
                          file.name)
         return cut
 
-    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, Any]]:
-        wanted = list(connections) or self.connections
-        for part in self._parts:
-            own = [c for c in wanted if self._owner.get(id(c)) is part]
-            if own:
-                yield from part.messages(own)
 
-    def close(self) -> None:
-        for part in self._parts:
-            part.close()
-
-
-class _ChainReader:
+class _ChainReader(_PartsReader):
     """Several bags of one recording read as one (``calibrate A B``): a recorder restarted
     in the middle of the drive, or the radar recorded at the roadside and the vehicle's
     poses in the vehicle. Each is opened as alone (``_open_reader``), in the order given;
@@ -453,9 +468,9 @@ class _ChainReader:
     without metadata (9 passes, 2.7 cm, and a warning about an interrupted recording)."""
 
     def __init__(self, paths: list[Path], stack: ExitStack) -> None:
-        self._parts = [stack.enter_context(_open_reader(path)) for path in paths]
+        parts = [stack.enter_context(_open_reader(path)) for path in paths]
         first: dict[str, tuple[str, Path]] = {}
-        for path, part in zip(paths, self._parts):
+        for path, part in zip(paths, parts):
             for connection in part.connections:
                 msgtype, where = first.setdefault(connection.topic, (connection.msgtype, path))
                 if msgtype != connection.msgtype:
@@ -463,31 +478,21 @@ class _ChainReader:
                         f'topic {connection.topic} is {msgtype} in {str(where)!r} and '
                         f'{connection.msgtype} in {str(path)!r}: bags read as one recording '
                         'must agree on their topics\' types')
-        self.connections: list[Any] = [c for part in self._parts for c in part.connections]
-        self._owner = {id(c): part for part in self._parts for c in part.connections}
-        self._current: Any = self._parts[0]
-
-    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, Any]]:
-        wanted = list(connections) or self.connections
-        for part in self._parts:
-            own = [c for c in wanted if self._owner.get(id(c)) is part]
-            if own:
-                # a bag's own reader decodes its messages (AnyReader with the bag's
-                # embedded definitions): ``_messages`` deserialises each as it is yielded
-                self._current = part
-                yield from part.messages(own)
-
-    def deserialize(self, rawdata: bytes, msgtype: str) -> Any:
-        return self._current.deserialize(rawdata, msgtype)
+        super().__init__(parts)
 
     def close(self) -> None:
         pass    # the parts close with the ExitStack that opened them
 
 
+def _listed(path: BagPaths) -> list[str | Path]:
+    """The bags ``path`` names, one or several."""
+    return [path] if isinstance(path, (str, Path)) else list(path)
+
+
 def _bag_paths(path: BagPaths) -> list[Path]:
     """The bag (or bags, read as one recording) that ``path`` names, a bag given twice
     refused (each message would count twice)."""
-    paths = [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
+    paths = [Path(p) for p in _listed(path)]
     if not paths:
         raise BagReadError('no bag given')
     seen: dict[Path, Path] = {}
@@ -502,9 +507,7 @@ def _bag_paths(path: BagPaths) -> list[Path]:
 
 def bag_label(path: BagPaths) -> str:
     """The bag, or the bags read as one recording, in a message."""
-    if isinstance(path, (str, Path)):
-        return str(path)
-    return ' + '.join(str(p) for p in path)
+    return ' + '.join(str(p) for p in _listed(path))
 
 
 @contextmanager
