@@ -1572,6 +1572,34 @@ def _clear_of_gaps(t: F64, to: F64, margin_s: float) -> np.ndarray:
     return clear
 
 
+#: An Odometry turning faster than this lateral acceleration [m/s^2] (yaw rate times
+#: speed; a car's tyres hold ~8, a calibration drive stays below 4) is no drive.
+_JOLT_LATERAL_MPS2 = 8.0
+
+
+def _clear_of_jolts(t: F64, to: F64, rate: F64, speed: F64, margin_s: float) -> np.ndarray:
+    """(n,) fixes at ``t`` with no Odometry sample within +-``margin_s`` (the lags searched
+    and the fixes' velocity span) whose yaw rate no car could drive at its speed.
+
+    Why: a heading that jumps (a path joined at a corner, an INS resetting its yaw) puts
+    a yaw rate of 10-16 rad/s in the twist for one sample. The lever arm's velocity
+    (omega x l) is fitted to those few samples like to any turn: a fifty-third probe's
+    fixes and Odometry of one point, stamped alike, read as an arm of 0.2 m (too short
+    to be taken) and then a lag of -28 ms, 20 standard errors clear, on every recording
+    of one seed, with advice to check the receiver's stamping.
+    """
+    jolt = np.abs(rate) * speed > _JOLT_LATERAL_MPS2
+    clear = np.ones(t.size, bool)
+    if not jolt.any():
+        return clear
+    at = np.sort(to[jolt])
+    # the jolt nearest each fix, before and after it
+    k = np.searchsorted(at, t)
+    before = np.abs(t - at[np.maximum(k - 1, 0)])
+    after = np.abs(at[np.minimum(k, at.size - 1)] - t)
+    return np.minimum(before, after) > margin_s
+
+
 def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
              rate: F64 | None = None) -> FixAgainstOdometry:
     """Seconds by which the fixes' stamps lag the Odometry's, and the lever arm between
@@ -1601,8 +1629,10 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
         return FixAgainstOdometry()
     v_odom = _turned(v_level, yaw)
     margin = _FIX_LAG_MAX_S + 0.2
+    rate = np.zeros(to.size) if rate is None else rate
     use = ((np.hypot(v_fix[:, 0], v_fix[:, 1]) > _TWIST_CHECK_SPEED_MPS)
-           & (t - margin > to[0]) & (t + margin < to[-1]) & _clear_of_gaps(t, to, margin))
+           & (t - margin > to[0]) & (t + margin < to[-1]) & _clear_of_gaps(t, to, margin)
+           & _clear_of_jolts(t, to, rate, np.hypot(v_level[:, 0], v_level[:, 1]), margin))
     if int(use.sum()) < 50:
         return FixAgainstOdometry()
     # Velocities over +-0.2 s are correlated over that span: every fifth of a 50 Hz drive
@@ -1612,7 +1642,6 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
     use = use[::max(1, int(use.size / max(float(t[use[-1]] - t[use[0]]), 1e-9)
                            / _FIX_LAG_RATE_HZ))]
     tu, vu = t[use], v_fix[use]
-    rate = np.zeros(to.size) if rate is None else rate
     unwrapped = np.unwrap(yaw)
     rate_hz = (tu.size - 1) / max(float(tu[-1] - tu[0]), 1e-9)
     correlated = max(1.0, 0.4 * rate_hz)
