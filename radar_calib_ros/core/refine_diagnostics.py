@@ -121,6 +121,25 @@ def _diagnostics(model: _Model, x: F64, r: F64, data: _Selected,
 _LANE_MAX_YAW_RATE_RPS = 0.2
 
 
+#: A lane holds its heading to within this [rad] over this distance of travel either side
+#: [m]: a bend of 45 m radius or more does (the junction turns' radii are 10-30 m).
+_LANE_HEADING_HELD_RAD = math.radians(20.0)
+_LANE_HEADING_SPAN_M = 15.0
+
+
+def _held_heading(positions: F64, yaw: F64) -> np.ndarray:
+    """(n,) poses (in time order) whose heading differs by less than
+    ``_LANE_HEADING_HELD_RAD`` from the headings ``_LANE_HEADING_SPAN_M`` of travel before
+    and after them."""
+    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(positions, axis=0).T))])
+    heading = np.unwrap(yaw)
+    held = np.ones(yaw.size, bool)
+    for reach in (-_LANE_HEADING_SPAN_M, _LANE_HEADING_SPAN_M):
+        held &= np.abs(np.interp(travelled + reach, travelled, heading)
+                       - heading) < _LANE_HEADING_HELD_RAD
+    return held
+
+
 #: Heading change within the view [rad] from which a pass counts as a turn through it.
 _TURN_RAD = math.radians(45.0)
 
@@ -171,8 +190,12 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     # A heading met mid-turn is no lane's: a junction's turns pass through every diagonal,
     # and a twenty-fourth probe with only east-west and north-south roads was asked to drive
     # 'south-westbound ... on a lane already driven'. Lanes are where the vehicle drove
-    # straight (or round a bend: 0.2 rad/s is a 50 m radius at 10 m/s).
-    straight = np.abs(recording.vehicle.yaw_rate_rps) < _LANE_MAX_YAW_RATE_RPS
+    # straight (or round a bend: 0.2 rad/s is a 50 m radius at 10 m/s), and held that
+    # heading for a while: a fifty-second probe's turns ran through a stretch of a few
+    # metres at a yaw rate of 0.03 rad/s halfway round, 57 deg turned 15 m before it and 33
+    # deg 15 m after, and were offered as 'south-westbound again on a lane already driven'.
+    straight = ((np.abs(recording.vehicle.yaw_rate_rps) < _LANE_MAX_YAW_RATE_RPS)
+                & _held_heading(pts[:, :2], yaw))
     if (inside & straight).any():
         inside &= straight
     if not inside.any():

@@ -2001,3 +2001,30 @@ def test_a_stop_in_view_splits_a_run_of_targets_not_a_pass() -> None:
     # turned round while standing: seen from the other side after it, another pass
     u_turn = np.where(t < 30.0, 0.0, np.pi)
     assert drive_passes(times.t_s, track(east, u_turn), gap).max() == 1
+
+
+def test_lanes_to_drive_again_hold_their_heading_turns_do_not() -> None:
+    """A fifty-second probe's junction turns ran through a few metres at almost no yaw
+    rate halfway round and were offered as 'south-westbound again on a lane already
+    driven'. Lanes are the straight legs and a bend of 60 m radius, not the middle of a
+    15 m radius turn, however slowly its heading changes there."""
+    from radar_calib_ros.core.refine_diagnostics import _held_heading
+
+    step = 0.5
+    leg = np.arange(0.0, 40.0, step)
+    # east 40 m, a left turn of 15 m radius in two arcs with 3 m straight between them,
+    # north 40 m, then a bend of 60 m radius through 45 deg
+    heading = [np.zeros(leg.size)]
+    arc = np.arange(0.0, 15.0 * np.pi / 4, step) / 15.0
+    heading += [arc, np.full(6, np.pi / 4), np.pi / 4 + arc, np.full(leg.size, np.pi / 2)]
+    bend = np.arange(0.0, 60.0 * np.pi / 4, step) / 60.0
+    heading += [np.pi / 2 + bend, np.full(leg.size, 3 * np.pi / 4)]
+    yaw = np.concatenate(heading)
+    xy = np.cumsum(step * np.column_stack([np.cos(yaw), np.sin(yaw)]), axis=0)
+    held = _held_heading(xy, yaw)
+    diagonal = np.flatnonzero(np.isclose(yaw, np.pi / 4))
+    assert not held[diagonal].any()
+    assert held[10:leg.size - 40].all()                       # the first leg
+    on_bend = np.flatnonzero((yaw > np.pi / 2 + 0.1) & (yaw < 3 * np.pi / 4 - 0.1))
+    assert held[on_bend].all()
+    assert held[-leg.size + 40:-10].all()                     # the last leg
