@@ -1778,13 +1778,14 @@ def test_the_start_uncertainty_counts_only_where_the_data_leave_the_position_to_
     assert term[4, 4] < 1e-6 and np.allclose(term[[0, 1, 2, 5, 6, 7]], 0.0)
 
 
-def test_the_start_may_be_a_car_length_off_only_where_the_vehicle_is_seen_head_on_or_tail_on(
+def test_the_start_may_be_half_a_car_length_off_only_where_the_vehicle_is_seen_head_on(
         ) -> None:
-    """Seen from the side the paper's stages are within about a metre (the depth of a side's
-    reflections); seen only head-on and tail-on, a car length. The scale follows the share
-    of the information seen heading along the boresight, and so does the start term."""
+    """Seen from the side the start is within about a metre (the depth of a side's
+    reflections); seen only head-on and tail-on, half a car length (the fit starts midway
+    between the ends a car length apart). The scale follows the share of the information
+    seen heading along the boresight, and so does the start term."""
     config = CalibConfig()
-    length = config.vehicle.length
+    length = 0.5 * config.vehicle.length
     boresight = math.radians(30.0)
     crossing = np.full(10, boresight + math.pi / 2)       # across the view
     towards = np.full(10, boresight + math.pi + 0.1)      # towards the radar, 6 deg off
