@@ -1937,6 +1937,8 @@ def _finite_difference(t: F64, x: F64, half_span_s: float = 0.2) -> F64:
 #: [m] either side, within these bounds [s] (see ``_course_over_ground``).
 _COURSE_SPAN_M = 2.0
 _COURSE_HALF_SPAN_S = (0.2, 0.5)
+#: Half span [s] of the local quadratic whose slope is the yaw rate of fixes alone.
+_COURSE_RATE_HALF_SPAN_S = 0.2
 
 
 def _course_over_ground(t: F64, velocities: F64, min_speed: float,
@@ -1970,6 +1972,21 @@ def _course_over_ground(t: F64, velocities: F64, min_speed: float,
     else:
         yaw = np.zeros_like(t)
     yaw_rate = _finite_difference(t, np.unwrap(yaw))
+    # The rate where the vehicle moves: a local quadratic's slope of each velocity's own
+    # direction over +-``_COURSE_RATE_HALF_SPAN_S``, not the smoothed course differenced.
+    # The course's window and the difference's each flatten a turn's peak: a fifty-fifth
+    # probe's 10 Hz fixes read its turns 10 % slow (0.90 of its INS's rate, 0.043 rad/s of
+    # noise), and with the rate's lever arm in every radial velocity the radar went 0.36 m
+    # along the boresight where its Odometry's rate gave 0.15; the quadratic reads 0.95
+    # (0.038 rad/s), 0.23 m. A quadratic has no lag on a turn that tightens steadily.
+    raw = np.unwrap(np.arctan2(velocities[:, 1], velocities[:, 0]))
+    fitted = _fix_velocities(t, raw[:, None], _COURSE_RATE_HALF_SPAN_S)[:, 0]
+    # only where every sample within reach moves (the direction of a stop is noise)
+    slow = np.concatenate([[0], np.cumsum(~good)])
+    lo = np.searchsorted(t, t - 1.5 * _COURSE_RATE_HALF_SPAN_S, side='left')
+    hi = np.searchsorted(t, t + 1.5 * _COURSE_RATE_HALF_SPAN_S, side='right')
+    moving = (slow[hi] - slow[lo] == 0) & np.isfinite(fitted)
+    yaw_rate = np.where(moving, fitted, yaw_rate)
     return yaw, yaw_rate
 
 
