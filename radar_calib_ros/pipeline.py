@@ -214,6 +214,11 @@ def _sparse_radar_config(recording: Recording, tracked: TrackedTargets,
     return config.replaced(settings), median
 
 
+#: Targets a frame on road users' tracks below which they, not the clutter, make the
+#: clutter's share high (``_ground_plane``).
+_FEW_ROAD_USER_TARGETS = 5.0
+
+
 def _ground_plane(recording: Recording, tracked: TrackedTargets,
                   config: CalibConfig) -> tuple[GroundPlane, str | None]:
     """Stage 4 on the targets ``ground.targets`` names; with 'moving', kept clear of clutter
@@ -230,10 +235,17 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
     # 'over 99 %', not '100 %', where the road users' targets are a sliver (a probe read
     # '100 %' as nothing real having moved)
     share = ('over 99' if clutter.share > 0.99 else f'{100 * clutter.share:.0f}')
-    note = (f'{share} % of the moving targets did not move as road users do '
-            '(the radar\'s false alarms, rain, snow or spray near it, ghosts of far targets '
-            'folded into its range or of multipath, or other clutter that '
-            'moves; the share is high where road users give a radar few targets) and tilted the '
+    # A few clutter targets a frame are most of them where road users give the radar few (a
+    # fifty-fourth probe's snow: 2.5 on the car, 4 false alarms, 'rain, snow or spray'
+    # named first for clutter that was not there): the counts say which it is.
+    frames = max(recording.frame_stamps_ns.size, 1)
+    on_tracks = (1.0 - clutter.share) * tracked.target_index.size / frames
+    other = clutter.share * tracked.target_index.size / frames
+    cause = ('road users gave the radar few targets' if on_tracks < _FEW_ROAD_USER_TARGETS
+             else 'the radar\'s false alarms, rain, snow or spray near it, ghosts of far '
+             'targets folded into its range or of multipath, or other clutter that moves')
+    note = (f'{share} % of the moving targets did not move as road users do ({other:.1f} a '
+            f'frame against {on_tracks:.1f} on road users\' tracks: {cause}) and tilted the '
             f'ground plane by {clutter.tilt_deg:.1f} deg: the plane was fitted to the road '
             'users\' tracks alone.')
     _LOG.warning('%s', note)

@@ -1260,3 +1260,28 @@ def test_evaluate_takes_the_calibrations_azimuth_error_off_its_recording_too() -
     assert _azimuths_as_calibrated(recording, {'quality': {}}) is recording
     assert _azimuths_as_calibrated(recording, {'quality': {'azimuth_bias': {
         'linear_deg': 'x'}}}) is recording
+
+
+@pytest.mark.parametrize('share, per_frame, cause', [
+    (0.62, 6.5, 'few targets'), (0.85, 40.0, 'false alarms')])
+def test_the_moving_clutter_note_says_whether_road_users_gave_few_targets(
+        monkeypatch: pytest.MonkeyPatch, share: float, per_frame: float, cause: str) -> None:
+    """A fifty-fourth probe's snow left 2.5 targets a frame on the car beside 4 false
+    alarms; the note named 'rain, snow or spray' first for clutter that was not there. It
+    gives both counts a frame and names the road users' few targets where they are."""
+    from types import SimpleNamespace
+
+    from radar_calib_ros.core import ground_plane
+
+    frames, total = 100, int(per_frame * 100)
+    monkeypatch.setattr(ground_plane, 'fit_road_plane', lambda *a: (
+        'plane', ground_plane.MovingClutter(share, 6.0)))
+    recording = SimpleNamespace(
+        targets=SimpleNamespace(positions_m=np.zeros((total, 3)),
+                                frame_index=np.arange(total) * frames // total),
+        frame_stamps_ns=np.arange(frames, dtype=np.int64) * 50_000_000)
+    tracked = SimpleNamespace(target_index=np.arange(total), track_id=np.zeros(total, int))
+    plane, note = pipeline._ground_plane(recording, tracked, CalibConfig())  # type: ignore
+    assert plane == 'plane' and note is not None and cause in note
+    assert (f'{share * per_frame:.1f} a frame against {(1 - share) * per_frame:.1f} on road '
+            'users\' tracks') in note
