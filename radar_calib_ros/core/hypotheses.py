@@ -438,6 +438,14 @@ def _accepted_cluster(eligible: Sequence[_Cluster], cfg: HypothesesConfig) -> _C
     return min(tied, key=lambda c: (-c.n_passes, _rms(c), c.mean_angle_deg))
 
 
+#: Why a vehicle in view may give no track that follows its poses (said where nothing more
+#: specific is known): a fifty-fifth probe's single pass, 79 frames on a left turn near
+#: the pole, was said 'never seen' with nothing more.
+_FEW_TRACKS_HINT = ('; a vehicle in view only briefly, or only while turning close to the '
+                    'radar, may give none: drive through the view a few times, straight '
+                    'across it as well')
+
+
 def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ...],
                      recording: Recording, ground: GroundPlane,
                      config: CalibConfig) -> HypothesisSelection:
@@ -492,7 +500,7 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
         raise InsufficientDataError(
             _STAGE, f'the calibration vehicle was never seen: none of {len(tracks)} tracks '
             f'follows its poses (registration RMS <= {cfg.max_rms_m:g} m over at least '
-            f'{cfg.min_track_frames} frames){lengths}')
+            f'{cfg.min_track_frames} frames){lengths or _FEW_TRACKS_HINT}')
     by_id = {int(t.track_id): t for t in tracks}
     hyp_tracks = [by_id[h.track_id] for h in hyps]
     # an upper bound of the passes (time gaps only): even all hypotheses together. Too few
