@@ -722,8 +722,9 @@ def _dense_radar_note(recording: Recording, config: CalibConfig) -> str | None:
     return (f'The radar gave {per_frame:.0f} targets a frame (an imaging radar\'s), and every '
             'one was calibrated with: time and memory grow with them (clustering with the '
             'square of the targets on each road user). radar.max_targets_per_frame: 400 '
-            'keeps that many of each frame, evenly over its list, for about a quarter of '
-            'the time and a third of the memory at the same accuracy.')
+            'keeps that many of each frame, evenly over its list (an independent probe\'s '
+            '2,300 a frame: 35-51 s and 1 GB instead of 153-278 s and 3-3.7 GB, as '
+            'accurate).')
 
 
 def _clock_notes(recording: Recording, config: CalibConfig) -> list[str]:

@@ -790,9 +790,12 @@ def _no_cluster_reason(clusters: Sequence[_Cluster], hyps: Sequence[Hypothesis],
                 f'{cfg.min_passes}' + _missed_drives([hyp_tracks[i] for i in seen.core],
                                                      seen.fit, tracks, recording, config))
     if widest.n_passes < 2:
+        # how many passes there were to agree (a fifty-fifth probe's two-pass recording
+        # was told this without the count)
         return (f'no consistent calibration-vehicle track: none of the {n_hyps} hypotheses '
-                'agrees with one from another pass (a single pass fits any road user\'s '
-                f'track); need {cfg.min_passes} agreeing passes')
+                f'(from up to {_n_passes(all_passes)}) agrees with one from another pass (a '
+                f'single pass fits any road user\'s track); need {cfg.min_passes} agreeing '
+                'passes')
     in_view, followed = views[widest.label]
     return (f'no consistent calibration-vehicle track: {n_hyps} chance hypotheses from other '
             f'road users, none agreeing across {cfg.min_passes} passes (the best group, '

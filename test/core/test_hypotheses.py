@@ -466,3 +466,17 @@ def test_too_few_passes_names_the_drives_in_view_no_track_followed() -> None:
     with pytest.raises(InsufficientDataError) as err:
         _select(make_scene(n_passes=2, split_pass=0))
     assert 'no track followed' not in str(err.value)
+
+
+def test_hypotheses_of_one_pass_say_how_many_passes_there_were() -> None:
+    """A recording whose tracks that fit the vehicle all lie in one pass (here one pass cut
+    in two tracks): the reason says so, with the count (a fifty-fifth probe's two-pass
+    recording was told 'a single pass fits any road user's track' without it)."""
+    scene = make_scene(n_passes=1, seed=1, split_pass=0)
+    hyps = hypotheses.generate_hypotheses(scene.tracks, scene.recording, scene.ground,
+                                          scene.config)
+    assert len(hyps) == 2
+    with pytest.raises(InsufficientDataError, match='agrees with one from another pass') as err:
+        hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+                                    scene.config)
+    assert 'none of the 2 hypotheses (from up to 1 pass)' in str(err.value)
