@@ -419,6 +419,15 @@ def _box_named(misfit_m: float, inlier_ratio: float) -> bool:
         misfit_m > _BOX_MISFIT_NOTE_M and inlier_ratio <= _BOX_MISFIT_NOTE_INSIDE))
 
 
+def _poses_at_targets(recording: Recording, index: I64, extrinsics: Extrinsics,
+                      config: CalibConfig) -> PoseSamples:
+    """The vehicle's poses at the radar stamps of the targets ``index``, put on the poses'
+    clock by ``sync.time_offset`` and the fitted clock offset."""
+    stamps = hypotheses.pose_stamps_ns(recording.stamps_of(index),
+                                       config.sync.time_offset + extrinsics.time_offset_s)
+    return interpolate_poses(recording.vehicle, stamps, config.sync.max_pose_gap)
+
+
 #: Beyond this distance along the vehicle between the middle of its targets (front and
 #: rear views averaged) and the middle of the box vehicle.* describe [m], the advice asks
 #: whether the poses' reference point is where vehicle.rear_overhang says. With the right
@@ -444,10 +453,7 @@ def _reference_point_advice(extrinsics: Extrinsics, recording: Recording, fitted
     inside and nothing said. The views from the front and from the rear are averaged, as
     the faces a radar sees pull the targets towards it (a car only ever seen coming would
     centre ahead)."""
-    stamps = recording.stamps_of(fitted)
-    offset_s = config.sync.time_offset + extrinsics.time_offset_s
-    poses = interpolate_poses(recording.vehicle, stamps + np.int64(round(offset_s * 1e9)),
-                              config.sync.max_pose_gap)
+    poses = _poses_at_targets(recording, fitted, extrinsics, config)
     ok = poses.valid
     if int(ok.sum()) < 2 * _OFF_CENTRE_TARGETS:
         return None
@@ -590,9 +596,7 @@ def _misfit_beside(extrinsics: Extrinsics, recording: Recording, index: I64,
     thirty-ninth probe).
     """
     index = np.asarray(index, np.int64)
-    stamps = recording.stamps_of(index)
-    poses = interpolate_poses(recording.vehicle, hypotheses.pose_stamps_ns(
-        stamps, config.sync.time_offset + extrinsics.time_offset_s), config.sync.max_pose_gap)
+    poses = _poses_at_targets(recording, index, extrinsics, config)
     if int(poses.valid.sum()) < 30:
         return None
     world = extrinsics.apply(recording.targets.positions_m[index[poses.valid]])
@@ -632,9 +636,7 @@ def _misfit_not_the_vehicles(extrinsics: Extrinsics, recording: Recording, index
     the targets that do move with it as well."""
     index = np.asarray(index, np.int64)
     targets = recording.targets
-    stamps = recording.stamps_of(index)
-    poses = interpolate_poses(recording.vehicle, hypotheses.pose_stamps_ns(
-        stamps, config.sync.time_offset + extrinsics.time_offset_s), config.sync.max_pose_gap)
+    poses = _poses_at_targets(recording, index, extrinsics, config)
     predicted = metrics.rigid_radial_velocity(extrinsics.apply(targets.positions_m[index]),
                                               extrinsics, poses.velocities_mps)
     judged = poses.valid & (np.abs(predicted) > _CHECK_MIN_RADIAL_SPEED_MPS)

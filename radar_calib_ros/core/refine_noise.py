@@ -146,7 +146,7 @@ def _azimuth_bias(g: dict[str, F64], data: _Selected) -> AzimuthBias | None:
     # azimuth bias 'of the antenna array's calibration' in 9 of 30 runs, its sign changing
     # from seed to seed, and corrected. The standard error is also taken clustered by pass
     # and stretch of ``_BIAS_BLOCK_S`` (a sandwich), and the larger counts.
-    t_target = (data.times.frame_t[data.times.inverse])[straight][keep]
+    t_target = data.times.t_s[straight][keep]
     block = np.floor(t_target / _BIAS_BLOCK_S).astype(np.int64)
     _, cluster = np.unique(np.column_stack([data.pass_id[straight][keep], block]), axis=0,
                            return_inverse=True)

@@ -2068,6 +2068,6 @@ def test_a_swaying_pole_is_no_azimuth_bias(sway_deg: float, bias_deg: float,
     g = {'rate': np.zeros(t.size), 'unit_v': unit, 'point_velocity': velocity,
          'rot': np.eye(3), 'v_pred': w_perp * error + rng.normal(0.0, 0.05, t.size)}
     data = SimpleNamespace(v_mps=np.zeros(t.size), sensor_m=sensor, pass_id=pass_id,
-                           times=SimpleNamespace(frame_t=frame_t, inverse=inverse))
+                           times=refine_model._Times(frame_t, inverse))
     bias = _azimuth_bias(g, data)  # type: ignore[arg-type]
     assert significant_azimuth_bias(bias) is named
