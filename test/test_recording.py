@@ -252,6 +252,39 @@ def test_fix_lag_and_lever_arm_are_found_across_the_jumps_between_passes(
         assert 'fix_lever_arm_forward_cm' not in rec.counters
 
 
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_no_lag_is_read_from_straight_passes_at_one_speed_with_a_noisy_ins_heading(
+        seed: int) -> None:
+    """A fifty-seventh probe's recordings: three straight passes along one lane, each at
+    its own constant speed, 4-6 s apart with no pose between them; fixes and Odometry of
+    one point stamped alike, the INS heading with 0.16 deg of white noise per 50 Hz sample.
+    Nothing there shows a lag, but the heading's noise, differenced sample by sample, had
+    counted as acceleration: lags of -1.19 to +1.17 s were taken at 15 ms standard errors,
+    and the radar went 4-13 m along the road."""
+    frame = LocalFrame.at(LAT0, LON0)
+    rng = np.random.default_rng(seed)
+    builder = RecordingBuilder(CalibConfig())
+    _one_frame(builder)
+    start = 0.0
+    for speed in rng.uniform(9.0, 13.0, 3):
+        t = np.arange(start, start + 16.0, 0.02)
+        x = -90.0 + speed * (t - start)
+        lat, lon, _ = frame.local_to_geodetic(np.column_stack(
+            [x + rng.normal(0, 0.012, t.size), 3.0 + rng.normal(0, 0.012, t.size),
+             np.zeros_like(t)]))
+        yaw_true = frame.local_convergence_rad(lat, lon) + rng.normal(
+            0, math.radians(0.16), t.size)
+        for i, ti in enumerate(t):
+            stamp = T0 + int(round(ti * 1e9))
+            builder.add_fix(FixSample(stamp, float(lat[i]), float(lon[i]), 0.0, 2,
+                                      (0.012, 0.03)))
+            builder.add_odometry(_odom(stamp, yaw_true[i], speed, 0.0))
+        start = t[-1] + rng.uniform(4.0, 6.0)
+    rec = builder.build()
+    assert 'fix_lag_ms' not in rec.counters
+    assert 'fix_lever_arm_forward_cm' not in rec.counters
+
+
 def test_a_roof_antennas_fixes_beside_a_rear_axle_odometry_on_turns_at_one_speed() -> None:
     """A thirty-first probe's set-up: fixes of a roof antenna 1.5 m ahead of the rear axle,
     whose Odometry (pose and twist) they come with, all exactly stamped; every turn driven
