@@ -89,6 +89,12 @@ class _Progress:
                              leave=False)
         self._bar.update(done - self._bar.n)
 
+    def end_reading(self) -> None:
+        """The recording is read (``evaluate`` and ``report`` run no stages to close it)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
     def stage(self, name: str, fraction: float) -> None:
         if self.mode == 'lines' and name != 'done':
             # every stage start once the run is long: the stages are few, and a line per
@@ -316,7 +322,8 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
                                 'parameters file (--params)': args.params}, args.bag)
     _check_writable(args.json)
     _say_bags(args.bag)
-    calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
+    calibration, recording = _calibrated_recording(args.bag, args.calibration, config,
+                                                   _Progress.for_stderr(args.progress))
     read_s = time.perf_counter() - start
     evaluation = evaluate_recording(
         recording, calibration, config,
@@ -345,7 +352,8 @@ def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
     config = _load_config(args.params)
     _refuse_file_as_directory('--out', args.out)
     _say_bags(args.bag)
-    calibration, recording = _calibrated_recording(args.bag, args.calibration, config)
+    calibration, recording = _calibrated_recording(args.bag, args.calibration, config,
+                                                   _Progress.for_stderr(args.progress))
     files = report_recording(
         args.out, recording, calibration, config,
         truth=_ground_truth(args.bag, str(calibration.get('radar_frame', 'radar'))),
@@ -355,8 +363,9 @@ def cmd_report(args: argparse.Namespace, out: TextIO) -> int:
     return 0
 
 
-def _calibrated_recording(bag: BagPaths, calibration_path: str,
-                          config: CalibConfig) -> tuple[dict[str, Any], Recording]:
+def _calibrated_recording(bag: BagPaths, calibration_path: str, config: CalibConfig,
+                          progress: _Progress | None = None,
+                          ) -> tuple[dict[str, Any], Recording]:
     """The calibration (of ``radar.frame_id`` where the file holds several radars') and the
     recording of that radar's topic (found by its frame where the parameters name none),
     for ``evaluate`` and ``report`` alike: ``report`` read the bag's only radar topic and
@@ -366,7 +375,10 @@ def _calibrated_recording(bag: BagPaths, calibration_path: str,
     # a bad file fails before the bag is read
     calibration = load_result(calibration_path, config.radar.frame_id)
     topic = _topic_of_frame(bag, config, str(calibration.get('radar_frame')))
-    recording = read_recording(bag, config, radar_topic=topic)
+    recording = read_recording(bag, config, radar_topic=topic,
+                               progress=progress.reading if progress else None)
+    if progress:
+        progress.end_reading()
     _warn_other_radar(bag, config, topic, str(calibration.get('radar_frame') or ''))
     return calibration, recording
 
@@ -703,6 +715,10 @@ def _add_recording_arguments(p: argparse.ArgumentParser, *, calibration: bool) -
         p.add_argument('--calibration', required=True, metavar='RESULT',
                        help='result file of radar-calib calibrate (result.yaml or result.json)')
     p.add_argument('--params', help='ROS 2 parameters file (default: built-in defaults)')
+    p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
+                   help='progress bars on stderr (default: bars on a terminal; elsewhere, once '
+                   'a run passes 10 s, a plain "progress:" line per stage and every 10 s '
+                   'while reading; --no-progress: none)')
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -718,10 +734,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help='result file (default: result.yaml); with --all-radars, where a copy '
                    'of the combined all_radars.yaml goes')
     p.add_argument('--json', help='also write the result as JSON here')
-    p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
-                   help='progress bars on stderr (default: bars on a terminal; elsewhere, once '
-                   'a run passes 10 s, a plain "progress:" line per stage and every 10 s '
-                   'while reading; --no-progress: none)')
     p.add_argument('--all-radars', action='store_true',
                    help='calibrate every radar topic of the recording, in parallel processes: '
                    'one result per radar frame in --output-dir plus all_radars.yaml with '

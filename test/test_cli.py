@@ -376,8 +376,8 @@ def test_report_reads_the_calibrated_radars_topic_as_evaluate_does(
     frames = {'/north/points': 'radar_ne', '/south/points': 'radar_sw'}
     monkeypatch.setattr(bag_io, 'radar_frame_ids', lambda path: frames)
     read: list[str | None] = []
-    monkeypatch.setattr(bag_io, 'read_recording',
-                        lambda bag, config, radar_topic=None: read.append(radar_topic))
+    monkeypatch.setattr(bag_io, 'read_recording', lambda bag, config, radar_topic=None,
+                        progress=None: read.append(radar_topic))
     asked: list[str | None] = []
 
     def load(path: Any, radar_frame: str | None = None) -> dict[str, Any]:
@@ -442,6 +442,34 @@ def test_evaluate_refuses_its_json_onto_the_calibration(
                          str(tmp_path / 'c.json'), '--json', str(tmp_path / 'c.json')], capsys)
     assert code == 2 and 'is the calibration file' in err
     assert (tmp_path / 'c.json').read_text() == '{"keep": 1}'
+
+
+@pytest.mark.parametrize('command', ['evaluate', 'report'])
+def test_evaluate_and_report_take_the_progress_options_of_calibrate(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+        command: str) -> None:
+    """A fifty-sixth probe's script passed --no-progress to every command, as calibrate
+    takes it; evaluate refused it (exit 2). All three read a recording, and all three
+    show (or, told so, do not show) its reading."""
+    from radar_calib_ros import result as result_io
+    from radar_calib_ros.errors import BagReadError
+    from radar_calib_ros.io import bag as bag_io
+    told: list[Any] = []
+
+    def read(bag: Any, config: Any, radar_topic: Any = None, progress: Any = None) -> Any:
+        told.append(progress)
+        raise BagReadError('stop here: the options were taken')
+    monkeypatch.setattr(bag_io, 'read_recording', read)
+    monkeypatch.setattr(bag_io, 'radar_frame_ids', lambda path: {'/radar/points': 'radar'})
+    monkeypatch.setattr(result_io, 'load_result',
+                        lambda path, frame=None: {'radar_frame': 'radar'})
+    tail = ['--out', str(tmp_path / 'o')] if command == 'report' else []
+    for flag, mode in (('--no-progress', 'off'), ('--progress', 'bars')):
+        (tmp_path / flag).mkdir()
+        code, _, err = _run([command, str(_small_bag(tmp_path / flag)), '--calibration',
+                             str(tmp_path / 'c.yaml'), flag, *tail], capsys)
+        assert code == 2 and 'stop here' in err
+        assert told[-1].__self__.mode == mode   # the reader's progress, as asked
 
 
 def test_misplaced_options_are_refused(tmp_path: Path,
