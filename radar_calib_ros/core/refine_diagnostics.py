@@ -160,6 +160,46 @@ def _turn_ranges(g: dict[str, F64], data: _Selected, est: Extrinsics) -> list[fl
     return ranges
 
 
+#: Places the vehicle drove through are compared by how many of the fit's targets came from
+#: it within this distance [m] per pose it had there (the time it spent), and a place is
+#: hidden below this share of the median place's.
+_SEEN_NEAR_M = 4.0
+_HIDDEN_SHARE = 0.25
+
+
+def _hidden(recording: Recording, inside: np.ndarray, seen_at: F64) -> np.ndarray:
+    """(n,) the vehicle's poses (of those ``inside``) driven while the radar recorded, at
+    places where few or none of the fit's targets came from it (``seen_at``: the vehicle's
+    positions at the targets' stamps), per time spent there.
+
+    Why: a parked truck between the radar and a lane hides the vehicle there on every
+    pass, and bearings never seen at an aspect are what the advice looks for: a
+    fifty-sixth probe's drives were sent, in 10 runs of 10, into the truck's shadow
+    (77-100 % of the car hidden there). Driving it again shows nothing either; the same
+    holds where the fit left the targets out (the vehicle in a queue of others). By the
+    targets' rate, not by whether any came: at the shadow's edge a fifth of the car still
+    shows.
+    """
+    from scipy.spatial import cKDTree
+
+    hidden = np.zeros(inside.size, bool)
+    stamps = recording.vehicle.stamps_ns
+    if seen_at.shape[0] == 0 or recording.frame_stamps_ns.size == 0:
+        return hidden
+    during = np.flatnonzero(inside & (stamps >= recording.frame_stamps_ns[0])
+                            & (stamps <= recording.frame_stamps_ns[-1]))
+    if during.size == 0:
+        return hidden
+    at = recording.vehicle.positions_m[during, :2]
+    seen = cKDTree(seen_at[:, :2]).query_ball_point(at, _SEEN_NEAR_M, return_length=True)
+    spent = cKDTree(at).query_ball_point(at, _SEEN_NEAR_M, return_length=True)
+    rate = seen / np.maximum(spent, 1)
+    if not (rate > 0).any():
+        return hidden
+    hidden[during] = rate < _HIDDEN_SHARE * float(np.median(rate[rate > 0]))
+    return hidden
+
+
 def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
                       g: dict[str, F64], data: _Selected, coverage: uncertainty.ViewCoverage,
                       bore: float, nearest_m: float) -> list[uncertainty.DriveCandidate]:
@@ -194,6 +234,7 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     # heading for a while: a fifty-second probe's turns ran through a stretch of a few
     # metres at a yaw rate of 0.03 rad/s halfway round, 57 deg turned 15 m before it and 33
     # deg 15 m after, and were offered as 'south-westbound again on a lane already driven'.
+    inside &= ~_hidden(recording, inside, g['pos'])
     straight = ((np.abs(recording.vehicle.yaw_rate_rps) < _LANE_MAX_YAW_RATE_RPS)
                 & _held_heading(pts[:, :2], yaw))
     if (inside & straight).any():

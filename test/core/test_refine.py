@@ -2071,3 +2071,27 @@ def test_a_swaying_pole_is_no_azimuth_bias(sway_deg: float, bias_deg: float,
                            times=refine_model._Times(frame_t, inverse))
     bias = _azimuth_bias(g, data)  # type: ignore[arg-type]
     assert significant_azimuth_bias(bias) is named
+
+
+def test_places_the_vehicle_drove_hidden_from_the_radar_are_not_advised() -> None:
+    """A fifty-sixth probe's parked truck between the radar and a lane: along 40-60 m of it
+    the car gave a tenth of its targets (none at all in the middle) on every pass, and the
+    advice sent the next drive there in 10 runs of 10. Those places are hidden; places
+    driven before the radar recorded, or seen, are not."""
+    t = np.arange(0.0, 12.0, 0.02)                     # 50 Hz poses along x at 10 m/s
+    x = -20.0 + 10.0 * t
+    positions = np.column_stack([x, np.full_like(x, 5.0), np.zeros_like(x)])
+    stamps = (t * 1e9).astype(np.int64)
+    frames = np.arange(int(0.5e9), int(12e9), int(0.1e9))   # the radar records from 0.5 s
+    frame_x = -20.0 + 10.0 * frames * 1e-9
+    per_frame = np.where((frame_x > 40.0) & (frame_x < 60.0),
+                         np.where(np.abs(frame_x - 50.0) < 6.0, 0, 1), 10)
+    seen_at = np.repeat(np.column_stack([frame_x, np.full_like(frame_x, 5.0)]), per_frame,
+                        axis=0)
+    recording = SimpleNamespace(vehicle=SimpleNamespace(stamps_ns=stamps, positions_m=positions),
+                                frame_stamps_ns=frames)
+    hidden = refine_diagnostics._hidden(recording, np.ones(t.size, bool), seen_at)
+    assert hidden[(x > 43.0) & (x < 57.0)].all()
+    assert not hidden[(x < 35.0) | (x > 65.0)].any()     # seen, or before the radar's span
+    inside = x > 50.0
+    assert not refine_diagnostics._hidden(recording, inside, seen_at)[~inside].any()
