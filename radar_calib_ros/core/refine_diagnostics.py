@@ -227,6 +227,8 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     # +-60.7 deg was sent 62-63 deg right of its boresight
     inside = ((p_rng <= min(r_max, 60.0)) & (p_rng >= max(10.0, nearest_m))
               & (p_bear >= b_lo) & (p_bear <= b_hi))
+    # and not where the vehicle drove unseen (a parked truck's shadow)
+    inside &= ~_hidden(recording, inside, g['pos'])
     # A heading met mid-turn is no lane's: a junction's turns pass through every diagonal,
     # and a twenty-fourth probe with only east-west and north-south roads was asked to drive
     # 'south-westbound ... on a lane already driven'. Lanes are where the vehicle drove
@@ -234,7 +236,6 @@ def _drive_candidates(recording: Recording, poses: _Poses, est: Extrinsics,
     # heading for a while: a fifty-second probe's turns ran through a stretch of a few
     # metres at a yaw rate of 0.03 rad/s halfway round, 57 deg turned 15 m before it and 33
     # deg 15 m after, and were offered as 'south-westbound again on a lane already driven'.
-    inside &= ~_hidden(recording, inside, g['pos'])
     straight = ((np.abs(recording.vehicle.yaw_rate_rps) < _LANE_MAX_YAW_RATE_RPS)
                 & _held_heading(pts[:, :2], yaw))
     if (inside & straight).any():
