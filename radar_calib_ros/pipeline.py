@@ -257,7 +257,8 @@ _CLOCK_STEP_S = 0.05
 
 
 def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground: GroundPlane,
-                config: CalibConfig, *, leaps: bool = True
+                config: CalibConfig, *, leaps: bool = True,
+                tracked: TrackedTargets | None = None
                 ) -> tuple[list[Hypothesis], HypothesisSelection]:
     """Stage 6, and again at other clock offsets when its hypotheses do not agree.
 
@@ -277,7 +278,8 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
     retry = config.sync.estimate_time_offset and max_off >= _CLOCK_STEP_S
     try:
         hyps = hypotheses.generate_hypotheses(tracks, recording, ground, config)
-        selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, config)
+        selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, config,
+                                                tracked=tracked)
     except InsufficientDataError as first:
         if not retry:
             raise
@@ -292,7 +294,8 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
         if not retry or selection.n_passes >= _AGREEING_SHARE * selection.passes_in_view:
             return hyps, selection
         shifted = _best_shifted(tracks, recording, ground, config,
-                                key=lambda s: (s.n_passes, len(s.accepted_track_ids)))
+                                key=lambda s: (s.n_passes, len(s.accepted_track_ids)),
+                                tracked=tracked)
         if shifted is None or shifted[2].n_passes < selection.n_passes + _AGREEING_GAIN:
             return hyps, selection
         _LOG.info('%d of the %d passes in view agree as stamped, %d with the radar stamps '
@@ -301,7 +304,8 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
         return shifted[1], replace(_shifted_selection(shifted[2], shifted[0]),
                                    passes_as_stamped=selection.n_passes)
     best = _best_shifted(tracks, recording, ground, config,
-                         key=lambda s: (len(s.accepted_track_ids), s.n_correspondences))
+                         key=lambda s: (len(s.accepted_track_ids), s.n_correspondences),
+                         tracked=tracked)
     if best is None:
         reason = f'{failure.reason} (also at clock offsets up to +-{max_off:g} s)'
         beyond = _beyond_offset(tracks, recording, ground, config) if leaps else None
@@ -343,7 +347,8 @@ def _shifted_selection(selection: HypothesisSelection, offset_s: float) -> Hypot
 
 
 def _best_shifted(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground: GroundPlane,
-                  config: CalibConfig, key: Callable[[HypothesisSelection], tuple[int, int]]
+                  config: CalibConfig, key: Callable[[HypothesisSelection], tuple[int, int]],
+                  tracked: TrackedTargets | None = None
                   ) -> tuple[float, list[Hypothesis], HypothesisSelection] | None:
     """Stage 6 at the radar stamps shifted by each offset within ``sync.max_time_offset``
     (and around the fixes' own clock, see ``_hypotheses``): the (offset, hypotheses,
@@ -363,7 +368,8 @@ def _best_shifted(tracks: tuple[SmoothedTrack, ...], recording: Recording, groun
                                                time_offset=config.sync.time_offset + offset))
         try:
             hyps = hypotheses.generate_hypotheses(tracks, recording, ground, shifted)
-            selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, shifted)
+            selection = hypotheses.prune_hypotheses(hyps, tracks, recording, ground, shifted,
+                                                    tracked=tracked)
         except InsufficientDataError:
             continue
         score = key(selection)
@@ -375,6 +381,31 @@ def _best_shifted(tracks: tuple[SmoothedTrack, ...], recording: Recording, groun
 #: How far the final fit's clock offset may lie from the shift stage 6 needed [s] for
 #: that shift to be taken as the clocks' (steps of ``_CLOCK_STEP_S``, half of one beyond).
 _SHIFT_CONFIRMED_S = 0.1
+
+
+def _company_reason(company: quality.Company) -> str:
+    east, north = company.offset_m
+    bearing = math.degrees(math.atan2(east, north)) % 360.0
+    return (f'another road user kept pace beside the vehicle on {company.drives} of its '
+            f'{company.judged} drives through the view, {math.hypot(east, north):.1f} m from '
+            f'it and always on the same side in the world (towards {bearing:.0f} deg from '
+            'grid north): a straight road driven to and fro with company in the next lane? '
+            'A radar placed that far over would see that road user where the vehicle was, '
+            'just as these drives show it, so which of the two is the calibration vehicle '
+            'they cannot tell (its radial velocities neither: the two move alike). Drive '
+            'again with no road user keeping pace beside the vehicle, or turn through the '
+            'view and cross it on other roads, where company changes sides in the world.')
+
+
+def _outfitted_note(outfitted: tuple[float, int, float, float]) -> str:
+    distance, passes, share, other = outfitted
+    return (f'Another group of tracks agreed across {passes} passes as well, placing the radar '
+            f'{distance:.1f} m from this result: a road user that kept pace with the vehicle '
+            '(alongside it, or ahead or behind). Its targets filled the vehicle\'s box '
+            f'(vehicle.*) {100 * other:.0f} % of the time, those taken {100 * share:.0f} %, so '
+            'it was taken for another vehicle of another size. Check that vehicle.* describe '
+            'the calibration vehicle; drive with no company keeping pace where the roads '
+            'allow.')
 
 
 def _held_clock_note(held_sigma_s: float, offset_s: float, config: CalibConfig) -> str:
@@ -1447,7 +1478,8 @@ def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibC
     if tracks_out is not None:
         tracks_out.append((ground, tracks))
     with stage('hypotheses'):
-        hyps, selection = _hypotheses(tracks, recording, ground, config, leaps=leaps)
+        hyps, selection = _hypotheses(tracks, recording, ground, config, leaps=leaps,
+                                      tracked=tracked)
     if selection.rivals:
         distance, passes = selection.rivals[0]
         groups = (f'two groups of tracks each agree across passes ({selection.n_passes} and '
@@ -1851,6 +1883,8 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                                               if sign < 0 else '') + '.')
         _LOG.warning('%s', flip_note)
     corrections = [flip_note] if factor != 1.0 else []
+    if selection.outfitted is not None:
+        corrections.append(_outfitted_note(selection.outfitted))
     if retry_note:
         corrections.insert(0, retry_note)
     if clutter_note:
@@ -1947,6 +1981,9 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                     'rate and the clocks before trusting the position along the travel.')
     with stage('quality'):
         detection = quality.check_vehicle_detection(current, recording, config)
+        company = quality.company_alongside(current, recording, config)
+        if company is not None:
+            raise InsufficientDataError('quality', _company_reason(company))
         # Said only once the vehicle is found: where it never was (a bench drive far out
         # of range), stage 6 shifted the clocks to make other road users agree, and a
         # warning that blamed vehicle.* came before the failure that names the cause.

@@ -286,7 +286,10 @@ class HypothesisSelection:
     vehicle's passes through the view under the accepted calibration
     (``hypotheses.vehicle_view_passes``), agreeing or not; passes_as_stamped: where the
     radar stamps were shifted because more passes agree so (``pipeline._hypotheses``), how
-    many agreed as stamped, else -1.
+    many agreed as stamped, else -1; outfitted: where a group of tracks agreeing across
+    nearly as many passes was set aside because the accepted one fills the vehicle's box
+    far better, (its distance [m], its passes, the accepted group's share of targets in
+    the box, its own), else None.
     """
 
     hypotheses: tuple[Hypothesis, ...]
@@ -301,6 +304,7 @@ class HypothesisSelection:
     mount_turn: MountTurn | None = None
     passes_in_view: int = 0
     passes_as_stamped: int = -1
+    outfitted: tuple[float, int, float, float] | None = None
 
     @property
     def n_passes(self) -> int:

@@ -35,7 +35,7 @@ def _fake_stage6(monkeypatch: pytest.MonkeyPatch, agreeing: dict[float, int]) ->
         return []
 
     def prune(hyps: Any, tracks: Any, recording: Any, ground: Any,
-              config: CalibConfig) -> HypothesisSelection:
+              config: CalibConfig, **_: Any) -> HypothesisSelection:
         n = agreeing.get(round(config.sync.time_offset, 6))
         if n is None:
             raise InsufficientDataError('hypotheses', 'hypotheses do not agree')
@@ -772,6 +772,18 @@ def test_a_rival_group_of_tracks_refuses_the_calibration(
                                    pipeline._StageClock())[-1] is clear
 
 
+def test_company_and_a_set_aside_group_are_said_with_their_figures() -> None:
+    """The refusal for company kept on one side names how often, how far and where; the
+    note for a longer vehicle set aside at stage 6 names the two shares in the box."""
+    from radar_calib_ros.core import quality
+    reason = pipeline._company_reason(quality.Company(6, 6, np.array([-0.7, 3.0])))
+    assert '6 of its 6 drives' in reason and '3.1 m from it' in reason
+    assert 'towards 347 deg from grid north' in reason and 'cannot tell' in reason
+    note = pipeline._outfitted_note((5.2, 7, 0.71, 0.29))
+    assert 'across 7 passes' in note and '5.2 m from this result' in note
+    assert '29 % of the time, those taken 71 %' in note
+
+
 def test_two_groups_that_agree_as_one_on_another_clock_name_the_clock(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The passes driven one way and those driven the other, each agreeing within itself:
@@ -943,7 +955,7 @@ def test_one_direction_of_two_agreeing_tries_other_offsets(
         return []
 
     def prune(hyps: Any, tracks: Any, recording: Any, ground: Any,
-              config: CalibConfig) -> HypothesisSelection:
+              config: CalibConfig, **_: Any) -> HypothesisSelection:
         offset = round(config.sync.time_offset, 6)
         return selection({0.0: 3, -0.05: shifted_passes}.get(offset, 2), 6)
     monkeypatch.setattr(pipeline.hypotheses, 'generate_hypotheses', generate)
@@ -957,7 +969,7 @@ def test_one_direction_of_two_agreeing_tries_other_offsets(
 
     tried.clear()
     monkeypatch.setattr(pipeline.hypotheses, 'prune_hypotheses',
-                        lambda *a: selection(4, 6))
+                        lambda *a, **k: selection(4, 6))
     pipeline._hypotheses((), _NO_LAG, None,  # type: ignore[arg-type]
                          _config(time_offset=0.0, max_time_offset=0.25))
     assert tried == [0.0]

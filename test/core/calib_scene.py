@@ -70,7 +70,9 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
                split_pass: int | None = None, random_cars: int = 0,
                followers: float | None = None, radar_stamp_shift_s: float = 0.0,
                stop_pass: int | None = None, stop_s: float = 12.0,
-               escort_m: float | None = None, config: CalibConfig | None = None) -> Scene:
+               escort_m: float | None = None, beside_m: float | None = None,
+               hidden_pass: int | None = None, radial_velocities: bool = False,
+               config: CalibConfig | None = None) -> Scene:
     """Build a scene.
 
     lanes: lane index per pass (default 0, 1, 2, ...); split_pass: that pass's track is
@@ -79,7 +81,12 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
     [s]; radar_stamp_shift_s: radar stamps are this much late against the pose clock;
     stop_pass: in that pass the vehicle stops for stop_s in view after 3 s (a stopped car
     has no moving targets: its track is cut in two); escort_m: a car of the vehicle's size
-    kept this far ahead of it on every pass (a convoy).
+    kept this far ahead of it on every pass (a convoy); beside_m: a 10 m truck, 2.5 m wide,
+    kept alongside the vehicle this far to its left (negative: right) on every pass, with a
+    track and eight targets a frame over its footprint; hidden_pass: on that pass the
+    vehicle gives no track and no target (hidden by the truck); radial_velocities: the
+    targets' radial velocities are those of the vehicle's motion (the truck's alike),
+    else 5 m/s each.
     """
     rng = np.random.default_rng(seed)
     config = config or CalibConfig()
@@ -133,6 +140,24 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
 
     for k, (start, end) in enumerate(windows):
         idx = np.flatnonzero((t_radar > start + 0.1) & (t_radar < end - 0.1))
+        if beside_m is not None:
+            bxy, byaw = pos_at(t_radar[idx])
+            truck = np.stack([rng.uniform(centre_forward - 5.0, centre_forward + 5.0,
+                                          (idx.size, 8)),
+                              rng.uniform(beside_m - 1.25, beside_m + 1.25, (idx.size, 8))],
+                             axis=-1).reshape(-1, 2)
+            truck_world = vehicle_box.vehicle_to_world(truck, np.repeat(bxy, 8, axis=0),
+                                                       np.repeat(byaw, 8))
+            positions.append(truth.inverse_apply(np.column_stack([
+                truck_world, ROAD_Z + rng.uniform(0.3, 2.5, truck_world.shape[0])])))
+            frames.append(np.repeat(idx, 8))
+            tc = vehicle_box.vehicle_to_world(
+                np.column_stack([np.full(idx.size, centre_forward),
+                                 np.full(idx.size, beside_m)]), bxy, byaw)
+            tid = add_track(idx, np.column_stack([tc, np.full(idx.size, ROAD_Z + 1.0)]))
+            track_ids.append(np.full(idx.size * 8, tid))
+        if k == hidden_pass:
+            continue
         if k == stop_pass:
             tau = t_radar[idx] - start
             idx = idx[(tau < 2.9) | (tau > 3.1 + stop_s)]
@@ -206,7 +231,13 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
     positions_m = np.concatenate(positions)
     frame_index = np.concatenate(frames)
     order = np.argsort(frame_index, kind='stable')
-    targets = Targets(positions_m[order], np.full(order.size, 5.0), frame_index[order])
+    radial = np.full(order.size, 5.0)
+    if radial_velocities:
+        t_frame = t_radar[frame_index[order]]
+        v = np.column_stack([np.interp(t_frame, t_pose, vel[:, i]) for i in range(3)])
+        rays = truth.apply(positions_m[order]) - truth.translation_m
+        radial = np.einsum('ij,ij->i', v, rays) / np.linalg.norm(rays, axis=1)
+    targets = Targets(positions_m[order], radial, frame_index[order])
     tracked = TrackedTargets(np.arange(order.size, dtype=np.int64),
                              np.concatenate(track_ids)[order])
     recording = Recording(frame_ns, targets, vehicle, LocalFrame.at(48.4, 9.99))

@@ -111,6 +111,50 @@ def test_a_look_alike_keeping_pace_on_every_pass_is_a_rival() -> None:
         assert _select(quiet)[1].rivals == ()
 
 
+def test_a_longer_vehicle_kept_alongside_gives_way_to_the_one_that_fills_the_box() -> None:
+    """A ten-metre truck kept alongside the vehicle on every pass agrees across passes as
+    well as the vehicle does and, the vehicle hidden behind it on one pass, across more: the
+    paper's rules take it, a lane off (a fifty-sixth probe: 4.8-5.2 m, exit 0). The
+    vehicle's targets fill its box, the truck's spill beyond its ends: with the targets at
+    hand the vehicle's group takes its place, and the selection says what it set aside."""
+    scene = make_scene(n_passes=5, lanes=[0] * 5, beside_m=3.5, hidden_pass=2, seed=1)
+    hyps = hypotheses.generate_hypotheses(scene.tracks, scene.recording, scene.ground,
+                                          scene.config)
+    plain = hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+                                        scene.config)
+    assert not set(plain.accepted_track_ids) & set(scene.vehicle_track_ids)
+    assert plain.n_passes == 5 and plain.outfitted is None
+    selection = hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
+                                            scene.config, tracked=scene.tracked)
+    assert set(selection.accepted_track_ids) == set(scene.vehicle_track_ids)
+    np.testing.assert_allclose(selection.extrinsics.translation_m, scene.truth.translation_m,
+                               atol=1e-6)
+    assert selection.outfitted is not None
+    distance, passes, share, other = selection.outfitted
+    assert distance == pytest.approx(3.5, abs=0.2) and passes == 5
+    assert share > 0.8 and other < 0.5  # a sixth lie on its edge (the nearest point)
+    assert selection.rivals == ()
+    # where the vehicle is taken anyway, nothing is set aside
+    seen = make_scene(n_passes=5, lanes=[0] * 5, beside_m=3.5, seed=1)
+    assert hypotheses.prune_hypotheses(
+        hypotheses.generate_hypotheses(seen.tracks, seen.recording, seen.ground, seen.config),
+        seen.tracks, seen.recording, seen.ground, seen.config,
+        tracked=seen.tracked).outfitted is None
+
+
+def test_box_fit_tells_a_longer_vehicle_by_its_spill_not_a_smaller_one() -> None:
+    """The contest's rule: far more of the winner's targets in the box, and the loser's
+    lane holding the rest of a longer vehicle beyond the box's ends. A smaller vehicle fills
+    the box as well and spills nothing, so it never out-fits the vehicle this way."""
+    car = hypotheses.BoxFit(inside=0.72, spill=0.02)
+    truck = hypotheses.BoxFit(inside=0.29, spill=0.25)
+    small = hypotheses.BoxFit(inside=0.98, spill=0.0)
+    assert car.beats(truck) and not truck.beats(car)
+    assert not small.beats(car)
+    assert not car.beats(hypotheses.BoxFit(inside=0.29, spill=0.1))  # no spill: not longer
+    assert not car.beats(hypotheses.BoxFit(inside=0.6, spill=0.3))  # fills it about as well
+
+
 def test_lowest_mean_angle_cluster_wins() -> None:
     # hand-made hypotheses: cluster A agrees to 0.2 deg, cluster B scatters by 3 deg
     scene = make_scene(n_passes=8, lanes=[0, 1, 2, 3, 0, 1, 2, 3])
