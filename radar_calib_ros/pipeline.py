@@ -324,6 +324,14 @@ def _hypotheses(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground:
                        'number of leap seconds (GPS, UTC and TAI time differ by 18, 19 and 37 '
                        f's): set sync.time_offset to {config.sync.time_offset + leap:g} and '
                        'calibrate again')
+        elif leaps and _BEYOND_CLOCK_S > max_off:
+            # a radar recorded on its own clock, seconds off and with nothing in the
+            # recording to show it (a fifty-eighth probe's roadside bag, 2 s off: refused
+            # with no hint; sync.max_time_offset 2.0 calibrated it to 4.6 cm)
+            reason += (f', nor beyond that up to +-{_BEYOND_CLOCK_S:g} s: where the radar\'s '
+                       'clock may be further off the vehicle\'s (no time sync between them), '
+                       'raise sync.max_time_offset to search as far (a few seconds; it takes '
+                       'longer)')
         raise InsufficientDataError(failure.stage, reason)
     offset, hyps, selection = best
     # said (or not) once the final refinement has fitted the offset: ``_shift_note``
