@@ -182,6 +182,8 @@ _RECEIPT_DISTINCT = 0.1
 #: and the least such step named [s]: an NTP correction of a few hundred milliseconds.
 _RECEIPT_STEP_WINDOW = 150
 _RECEIPT_STEP_S = 0.15
+#: A step must leave under this share of the scatter a line leaves about the smoothed lag.
+_STEP_OVER_LINE = 0.5
 
 
 def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
@@ -212,11 +214,44 @@ def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
     step = after - before
     if abs(step) < _RECEIPT_STEP_S * 1e9:
         return None
+    # A radar clock that drifts (a free-running oscillator: 1000 ppm over six minutes is
+    # 0.38 s) ramps the lag, whose halves differ by half the ramp wherever it is split; two
+    # constant offsets then explain it no better than a line (a fifty-eighth probe's drift
+    # was named a reboot's jump 10 s into the drive, in 4 runs of 4).
+    if _best_step_rss(smooth) >= _STEP_OVER_LINE ** 2 * _line_rss(received, smooth):
+        return None
     if _pose_lag_stepped(pose_lag, pose_received, int(received[k]), step):
         return None
     # a lag that drops is a stamp that jumps forward
     return (int(round(-step / 1e6)), int((received[k] - received[0]) // 10**6),
             _step_sides(order, lag, k, before, after, w), before, after)
+
+
+def _line_rss(received: I64, values: F64) -> float:
+    """The residual sum of squares of ``values`` about their least-squares line over the
+    receive times (NaN where the numbers overflow: corrupted stamps)."""
+    t = (received - received[0]).astype(np.float64) * 1e-9
+    t -= t.mean()
+    centred = values - values.mean()
+    spread = float(np.dot(t, t))
+    with np.errstate(all='ignore'):
+        slope = float(np.dot(t, centred)) / spread if spread > 0 else 0.0
+        return float(np.sum((centred - slope * t) ** 2))
+
+
+def _best_step_rss(values: F64) -> float:
+    """The residual sum of squares of ``values`` about the best two constant pieces (the
+    split anywhere): what a step leaves."""
+    n = values.size
+    if n < 2:
+        return 0.0
+    with np.errstate(all='ignore'):
+        centred = values - values.mean()
+        cum, cum_sq = np.cumsum(centred), np.cumsum(centred ** 2)
+        j = np.arange(1, n)
+        left = cum_sq[:-1] - cum[:-1] ** 2 / j
+        right = (cum_sq[-1] - cum_sq[:-1]) - (cum[-1] - cum[:-1]) ** 2 / (n - j)
+        return float(np.min(left + right))
 
 
 @dataclass(frozen=True)

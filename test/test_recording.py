@@ -1335,6 +1335,17 @@ def test_a_small_step_of_the_radar_clock_is_named_and_jitter_is_not() -> None:
     v2x = rng.integers(300, 1500, n).astype(np.int64) * 1_000_000
     assert 'radar_stamp_jump_ms' not in receipt_checks(v2x, received, pose_lag,
                                                        pose_received)
+    # a clock that drifts ramps the lag (1000 and 2000 ppm: 0.27 and 0.53 s over the
+    # drive): no step, whatever the halves' medians say (a fifty-eighth probe's was named a
+    # reboot); a step on top of the ramp still is one
+    for ppm in (1000, 2000):
+        ramp = latency - (received * ppm // 10**6)
+        assert 'radar_stamp_jump_ms' not in receipt_checks(ramp, received, pose_lag,
+                                                           pose_received)
+    ramped = latency - (received * 200 // 10**6)
+    ramped[2500:] -= 300_000_000
+    out = receipt_checks(ramped, received, pose_lag, pose_received)
+    assert out['radar_stamp_jump_ms'] == pytest.approx(300, abs=40)
     # the recorder's clock stepped: both receipt lags step together
     recorder = latency.copy()
     recorder[2500:] += 300_000_000
