@@ -1371,6 +1371,24 @@ def test_a_drifting_radar_clock_is_found_from_the_passes_offsets() -> None:
     assert small is None or abs(small.rate) > 2 * small.sigma
 
 
+def test_a_drift_is_not_held_flat_by_two_passes_of_much_information() -> None:
+    """A fifty-eighth probe's 16 passes over six minutes, 1000 ppm (as the first fit
+    left them, partly followed): two turning passes carry ten times a straight one's
+    information, and weighted by it the line was refused at 3.8 sigma. Capped at twice the
+    median pass, it is found; the same passes with no drift in them show none."""
+    probe = [[10.2, -0.0666, 1.24e4], [26.2, -0.0716, 1.06e4], [53.6, -0.0708, 1.0e4],
+             [74.2, -0.0805, 8.69e3], [103.6, -0.146, 3.07e4], [123.7, -0.1584, 1.1e5],
+             [150.9, -0.1666, 8.75e4], [171.9, -0.1608, 1.3e4], [198.6, -0.1949, 1.16e4],
+             [221.7, -0.2119, 1.38e4], [240.3, -0.2177, 1.23e4], [266.9, -0.2361, 1.16e4],
+             [286.7, -0.2457, 8.34e3], [316.1, -0.1954, 3.33e4], [331.8, -0.1773, 6.31e4],
+             [358.5, -0.1816, 2.21e4]]
+    drift = refine_clock._clock_drift(probe, 180.0)
+    assert drift is not None and -1000e-6 < drift.rate < -200e-6
+    rng = np.random.default_rng(3)
+    flat = [[t, -0.15 + float(rng.normal(0.0, 0.02)), w] for t, _, w in probe]
+    assert refine_clock._clock_drift(flat, 180.0) is None
+
+
 def test_a_radar_clock_running_fast_is_followed_and_said() -> None:
     """The radar's stamps run 600 ppm fast (65 ms over the drive; one offset for all of it
     fits no pass): the passes' offsets show the drift, the fit follows it, the advice
