@@ -385,6 +385,22 @@ def test_no_verdict_from_two_passes_or_a_failed_fit(
         recording, _calibration(truth), config))
 
 
+def test_company_on_one_side_in_the_world_cannot_tell(
+        sim: SimulationSummary, config: CalibConfig, recording: Recording,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A recording where a road user kept pace beside the vehicle on one side in the world
+    fits a calibration and one that far over alike (a fifty-ninth probe's right calibration
+    'did not hold' on such a drive): 'cannot tell', saying why, and no fit is judged."""
+    from radar_calib_ros.core import quality
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    monkeypatch.setattr(evaluate.quality, 'company_alongside', lambda *a: quality.Company(
+        5, 6, np.array([3.0, -1.0])))
+    g = evaluate.evaluate_recording(recording, _calibration(truth), config).agreement
+    assert g is not None and g.verdict == 'cannot tell' and not g.differences
+    assert 'on 5 of its 6 drives' in g.reason and '3.2 m from it' in g.reason
+
+
 def test_stated_sigmas_fall_back_to_the_rms_angle() -> None:
     """Results written before the per-axis rotation sigmas hold only the RMS angle: it
     bounds each axis. A file without any (a surveyed calibration) states none."""
