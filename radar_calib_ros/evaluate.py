@@ -395,8 +395,9 @@ def check_agreement(evaluation: Evaluation, config: CalibConfig) -> Agreement:
     'doubtful'); each half judged on its own (three passes' scatter) did not find them
     either, so that is left to a second drive.
 
-    A recording on which a road user kept pace beside the vehicle on one side in the world
-    (``quality.company_alongside``) cannot tell: 'cannot tell'.
+    A recording on which a road user kept pace beside the vehicle on one side in the world,
+    or two side by side with the calibration between them (``quality.company_alongside``),
+    cannot tell: 'cannot tell'.
 
     Why a refit and not the paper's figures: they are flat or point the wrong way for
     decimetres along the boresight and a degree of pitch, and blind to altitude and roll;
@@ -408,13 +409,19 @@ def check_agreement(evaluation: Evaluation, config: CalibConfig) -> Agreement:
         # A calibration and one placed that far over both fit such a recording: a fifty-
         # ninth probe's right calibration 'did not hold' on a straight drive with a car
         # alongside, and calibrate refuses such drives (``quality.company_alongside``).
+        where = (f'two road users kept pace side by side on {company.drives} of the '
+                 f'vehicle\'s {company.judged} drives through the view, '
+                 f'{np.hypot(*company.offset_m):.1f} m apart and at the same two places in '
+                 'the world, the calibration putting the vehicle between them'
+                 if company.between else
+                 f'another road user kept pace beside the vehicle on {company.drives} of its '
+                 f'{company.judged} drives through the view, '
+                 f'{np.hypot(*company.offset_m):.1f} m from it and always on the same side in '
+                 'the world')
         return Agreement('cannot tell', (
-            f'another road user kept pace beside the vehicle on {company.drives} of its '
-            f'{company.judged} drives through the view, {np.hypot(*company.offset_m):.1f} m '
-            'from it and always on the same side in the world: on this recording a '
-            'calibration and one that places the radar that far over fit alike, so it '
-            'cannot judge one. Evaluate on a drive without such company, or one that turns '
-            'through the view or crosses it on other roads'))
+            f'{where}: on this recording a calibration and one that places the radar that '
+            'far over fit alike, so it cannot judge one. Evaluate on a drive without such '
+            'company, or one that turns through the view or crosses it on other roads'))
     stated = _stated_sigmas(evaluation.calibration)
     agreement, diagnostics, fitted = _judged_fit(evaluation, config, stated)
     if fitted is None or (agreement.verdict == 'cannot tell' and not _checks_rotation(

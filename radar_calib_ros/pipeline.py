@@ -394,6 +394,18 @@ _SHIFT_CONFIRMED_S = 0.1
 def _company_reason(company: quality.Company) -> str:
     east, north = company.offset_m
     bearing = math.degrees(math.atan2(east, north)) % 360.0
+    if company.between:
+        return (f'two road users kept pace side by side through the view on {company.drives} '
+                f'of the vehicle\'s {company.judged} drives, {math.hypot(east, north):.1f} m '
+                f'apart (along {bearing % 180.0:.0f}-{bearing % 180.0 + 180.0:.0f} deg from '
+                'grid north) and at the same two places in the world on every drive: a '
+                'straight road driven to and fro with company in the next lane? The best '
+                'calibration put the vehicle between the two; a radar placed where either of '
+                'them is the vehicle would see these drives alike, so which of the two is the '
+                'calibration vehicle they cannot tell (its radial velocities neither: the two '
+                'move alike). Drive again with no road user keeping pace beside the vehicle, '
+                'or turn through the view and cross it on other roads, where company changes '
+                'sides in the world.')
     return (f'another road user kept pace beside the vehicle on {company.drives} of its '
             f'{company.judged} drives through the view, {math.hypot(east, north):.1f} m from '
             f'it and always on the same side in the world (towards {bearing:.0f} deg from '

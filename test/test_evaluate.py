@@ -399,6 +399,12 @@ def test_company_on_one_side_in_the_world_cannot_tell(
     g = evaluate.evaluate_recording(recording, _calibration(truth), config).agreement
     assert g is not None and g.verdict == 'cannot tell' and not g.differences
     assert 'on 5 of its 6 drives' in g.reason and '3.2 m from it' in g.reason
+    monkeypatch.setattr(evaluate.quality, 'company_alongside', lambda *a: quality.Company(
+        6, 6, np.array([3.0, -1.0]), True))
+    g = evaluate.evaluate_recording(recording, _calibration(truth), config).agreement
+    assert g is not None and g.verdict == 'cannot tell' and not g.differences
+    assert 'side by side on 6 of the vehicle\'s 6 drives' in g.reason
+    assert '3.2 m apart' in g.reason and 'between them' in g.reason
 
 
 def test_stated_sigmas_fall_back_to_the_rms_angle() -> None:

@@ -780,6 +780,9 @@ def test_company_and_a_set_aside_group_are_said_with_their_figures() -> None:
     reason = pipeline._company_reason(quality.Company(6, 6, np.array([-0.7, 3.0])))
     assert '6 of its 6 drives' in reason and '3.1 m from it' in reason
     assert 'towards 347 deg from grid north' in reason and 'cannot tell' in reason
+    pair = pipeline._company_reason(quality.Company(7, 8, np.array([-1.6, 3.1]), True))
+    assert '7 of the vehicle\'s 8 drives' in pair and '3.5 m apart' in pair
+    assert 'along 153-333 deg from grid north' in pair and 'between the two' in pair
     note = pipeline._outfitted_note((5.2, 7, 0.71, 0.29))
     assert 'across 7 passes' in note and '5.2 m from this result' in note
     assert '29 % of the time, those taken 71 %' in note

@@ -384,6 +384,27 @@ def test_company_on_one_side_in_the_world_is_found_and_company_that_changes_side
     assert quality.company_alongside(one_way.truth, still, one_way.config) is None
 
 
+def test_a_calibration_between_two_road_users_side_by_side_is_found() -> None:
+    """The truck kept on one side in the world, and the calibration put the box between it
+    and the vehicle (a sixtieth probe: the radar 1.1-1.5 m over towards a car on the far
+    side, exit 0): targets on both sides of the box, the two at the same places in the
+    world on every drive. The vehicle alone, the box put a metre over, is no pair."""
+    one_way = make_scene(n_passes=4, lanes=[0] * 4, beside_m=3.5, radial_velocities=True,
+                         seed=2)
+    truck = quality.company_alongside(one_way.truth, one_way.recording, one_way.config)
+    assert truck is not None and not truck.between
+    half = np.append(0.5 * truck.offset_m, 0.0)
+    between = replace(one_way.truth, translation_m=one_way.truth.translation_m - half)
+    company = quality.company_alongside(between, one_way.recording, one_way.config)
+    assert company is not None and company.between
+    assert company.drives == company.judged == 4
+    assert np.hypot(*company.offset_m) == pytest.approx(3.5, abs=0.5)
+    alone = make_scene(n_passes=4, lanes=[0] * 4, radial_velocities=True, seed=2)
+    over = replace(alone.truth,
+                   translation_m=alone.truth.translation_m - half / np.linalg.norm(half))
+    assert quality.company_alongside(over, alone.recording, alone.config) is None
+
+
 def test_one_direction_is_named_as_a_compass_heading() -> None:
     """Pass headings are clockwise from north, as the result's boresight azimuth (an
     eastbound drive was once named 'heading 355 deg', anticlockwise from east)."""
