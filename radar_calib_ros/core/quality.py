@@ -1156,46 +1156,22 @@ def company_alongside(extrinsics: Extrinsics, recording: Recording,
     view on other roads, the road user's offset turns with them and the tracks tell them
     apart (the same probe's junction drives: all within 2 sigma).
     """
-    drives = drives_through_view(extrinsics, recording, np.zeros(0, np.int64), config)
-    targets = recording.targets
-    if len(drives) < 2 or len(targets) == 0:
+    rigid = _rigid_with_the_vehicle(extrinsics, recording, config)
+    if rigid is None:
         return None
-    # only targets fast enough to pass the rigid test below (|v_r| within the tolerance of
-    # a prediction above the least speed): the static clutter, most of a recording, is not
-    # placed at all (a 15-minute drive: 1.2 s and 280 MB otherwise)
-    fast = np.flatnonzero(np.abs(targets.radial_velocity_mps)
-                          > _CHECK_MIN_RADIAL_SPEED_MPS - _CHECK_VR_TOLERANCE_MPS)
-    poses = _poses_at_targets(recording, fast, extrinsics, config)
-    world = extrinsics.apply(targets.positions_m[fast])
-    predicted = metrics.rigid_radial_velocity(world, extrinsics, poses.velocities_mps)
-    keep = np.flatnonzero(
-        poses.valid & (np.abs(predicted) > _CHECK_MIN_RADIAL_SPEED_MPS)
-        & (np.abs(targets.radial_velocity_mps[fast] - predicted) <= _CHECK_VR_TOLERANCE_MPS))
-    if keep.size == 0:
-        return None
-    rigid = fast[keep]
-    local = world_to_vehicle(world[keep], poses.positions_m[keep], poses.yaw_rad[keep])
+    local, offset, frame, drives = rigid.local_m, rigid.offset_m, rigid.frame, rigid.drives
     x_min, x_max, y_min, y_max = vehicle_box.box_limits(config.vehicle)
-    centre = vehicle_box.vehicle_to_world(
-        np.column_stack([np.full(keep.size, 0.5 * (x_min + x_max)), np.zeros(keep.size)]),
-        poses.positions_m[keep], poses.yaw_rad[keep])
-    offset = world[keep, :2] - centre
     ends = ((local[:, 0] >= x_min - _COMPANY_ENDS_M) & (local[:, 0] <= x_max + _COMPANY_ENDS_M))
     on = ((local[:, 0] >= x_min - 0.5) & (local[:, 0] <= x_max + 0.5)
           & (local[:, 1] >= y_min - 0.5) & (local[:, 1] <= y_max + 0.5))
     near, far = _COMPANY_SIDE_M
     sides = (ends & (local[:, 1] > y_max + near) & (local[:, 1] < y_max + far),
              ends & (local[:, 1] < y_min - near) & (local[:, 1] > y_min - far))
-    frame = targets.frame_index[rigid]
-    stamps = hypotheses.pose_stamps_ns(recording.stamps_of(rigid),
-                                       config.sync.time_offset + extrinsics.time_offset_s)
-    t0 = int(recording.vehicle.stamps_ns[0])
     corridor = ends & (np.abs(local[:, 1]) < max(y_max, -y_min) + far)
     judged = 0
     offsets: list[F64] = []
     pairs: list[F64] = []
-    for d in drives:
-        in_drive = (stamps >= t0 + d.start_s * 1e9) & (stamps <= t0 + d.end_s * 1e9)
+    for in_drive in drives:
         seen = np.unique(frame[in_drive & on])
         if seen.size < _COMPANY_MIN_FRAMES:
             continue
@@ -1237,27 +1213,153 @@ def company_alongside(extrinsics: Extrinsics, recording: Recording,
 
 def _side_by_side(lateral_m: F64, frame: I64, offset_m: F64) -> F64 | None:
     """The world offsets (2, 2) from the box's centre of two road users side by side in a
-    drive's rigid targets, else None: the best split of the targets' lateral offsets into
-    two groups (1-D 2-means: exact by scanning the sorted values) whose means lie at least
-    ``_COMPANY_MIN_OFFSET_M`` apart, each group in at least ``_COMPANY_FRAME_SHARE`` of the
-    frames with either. One vehicle's targets split into halves about a width apart."""
-    if lateral_m.size < 2 * _COMPANY_MIN_FRAMES:
+    drive's rigid targets (``_two_groups`` of their lateral offsets at least
+    ``_COMPANY_MIN_OFFSET_M`` apart), else None."""
+    groups = _two_groups(lateral_m, frame, _COMPANY_MIN_OFFSET_M)
+    if groups is None:
         return None
-    order = np.argsort(lateral_m)
-    y = lateral_m[order]
+    return np.stack([offset_m[g].mean(axis=0) for g in groups])
+
+
+def _two_groups(values: F64, frame: I64, min_apart: float) -> tuple[I64, I64] | None:
+    """The indices of two groups of a drive's rigid targets by one coordinate, lower first,
+    where they are two road users, else None: the best split into two (1-D 2-means, exact
+    by scanning the sorted values) whose means lie at least ``min_apart`` apart, each
+    group in at least ``_COMPANY_FRAME_SHARE`` of the frames with either. One vehicle's
+    targets split into halves about half its extent apart."""
+    if values.size < 2 * _COMPANY_MIN_FRAMES:
+        return None
+    order = np.argsort(values)
+    y = values[order]
     k = np.arange(1, y.size)
     head = np.cumsum(y)[:-1]
     head_sq = np.cumsum(y ** 2)[:-1]
     tail, tail_sq = y.sum() - head, (y ** 2).sum() - head_sq
     within = head_sq - head ** 2 / k + tail_sq - tail ** 2 / (y.size - k)
     cut = int(np.argmin(within)) + 1
-    if y[cut:].mean() - y[:cut].mean() < _COMPANY_MIN_OFFSET_M:
+    if y[cut:].mean() - y[:cut].mean() < min_apart:
         return None
     groups = (order[:cut], order[cut:])
     frames = np.unique(frame)
     if min(np.isin(frames, frame[g]).mean() for g in groups) < _COMPANY_FRAME_SHARE:
         return None
-    return np.stack([offset_m[g].mean(axis=0) for g in groups])
+    return groups
+
+
+#: A road user in the vehicle's lane (within 0.5 m of its box's sides) this far beyond its
+#: ends [m], its centre at least the box's length plus ``_IN_LINE_APART_M`` from the
+#: vehicle's and its near end within ``refine.gate_m`` plus ``_IN_LINE_NEAR_M`` of the box,
+#: on at least ``_IN_LINE_DRIVE_SHARE`` of the drives, follows or leads it closely enough
+#: for the final fit to take its targets: see ``company_in_line``. (A fifty-ninth probe's
+#: followers 0.7 and 1 s behind, 3-4 m beyond the box, left the clock right to 12 ms.)
+_IN_LINE_REACH_M = 8.0
+_IN_LINE_APART_M = 0.5
+_IN_LINE_NEAR_M = 1.0
+_IN_LINE_DRIVE_SHARE = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class InLine:
+    """A road user that followed or led the vehicle in its lane on ``drives`` of ``judged``
+    drives, ``gap_m`` centre to centre: ``headway_s`` at the vehicle's speed (medians)."""
+
+    drives: int
+    judged: int
+    gap_m: float
+    headway_s: float
+
+
+def company_in_line(extrinsics: Extrinsics, recording: Recording,
+                    config: CalibConfig) -> InLine | None:
+    """The road user that followed (or led) the vehicle closely in its lane on half the
+    drives or more (see ``_IN_LINE_REACH_M``), where there is one, else None.
+
+    Why: a follower a constant time behind puts its targets where the vehicle's would be
+    with the radar's clock that much late, on every drive, whatever the speed: the clock
+    offset is one with the headway. A fifty-ninth probe's follower 0.5 s behind left the
+    clock 0.05-0.40 s off at 4-10 sigma, and advice to set sync.time_offset to -0.37 s
+    (the truth +0.03). Found whatever the clock: the two keep their distance along the
+    travel however the box is moved between them.
+    """
+    rigid = _rigid_with_the_vehicle(extrinsics, recording, config)
+    if rigid is None:
+        return None
+    x_min, x_max, y_min, y_max = vehicle_box.box_limits(config.vehicle)
+    local = rigid.local_m
+    lane = ((local[:, 1] >= y_min - 0.5) & (local[:, 1] <= y_max + 0.5)
+            & (local[:, 0] >= x_min - _IN_LINE_REACH_M)
+            & (local[:, 0] <= x_max + _IN_LINE_REACH_M))
+    judged = 0
+    gaps: list[float] = []
+    headways: list[float] = []
+    for in_drive in rigid.drives:
+        pick = np.flatnonzero(in_drive & lane)
+        if np.unique(rigid.frame[pick]).size < _COMPANY_MIN_FRAMES:
+            continue
+        judged += 1
+        groups = _two_groups(local[pick, 0], rigid.frame[pick],
+                             x_max - x_min + _IN_LINE_APART_M)
+        if groups is None:
+            continue
+        gap = float(local[pick[groups[1]], 0].mean() - local[pick[groups[0]], 0].mean())
+        if gap > x_max - x_min + config.refine.gate_m + _IN_LINE_NEAR_M:
+            continue
+        gaps.append(gap)
+        headways.append(gap / max(float(np.median(rigid.speed_mps[pick])), 1e-9))
+    if judged < 2 or len(gaps) < max(2, _IN_LINE_DRIVE_SHARE * judged):
+        return None
+    return InLine(len(gaps), judged, float(np.median(gaps)), float(np.median(headways)))
+
+
+@dataclass(frozen=True, slots=True)
+class _RigidTargets:
+    """Targets that move with the vehicle (its rigid radial velocity) under a calibration:
+    in its frame (``local_m``, (n, 2): forward, left), from its box's centre in the world
+    (``offset_m``, (n, 2): E, N), their radar frames, the vehicle's speed at them [m/s], and
+    one mask (n,) per drive through the view."""
+
+    local_m: F64
+    offset_m: F64
+    frame: I64
+    speed_mps: F64
+    drives: tuple[np.ndarray, ...]
+
+
+def _rigid_with_the_vehicle(extrinsics: Extrinsics, recording: Recording,
+                            config: CalibConfig) -> _RigidTargets | None:
+    """The targets moving with the vehicle on its drives through the view, as the company
+    checks judge them (None with fewer than two drives or no such target)."""
+    drives = drives_through_view(extrinsics, recording, np.zeros(0, np.int64), config)
+    targets = recording.targets
+    if len(drives) < 2 or len(targets) == 0:
+        return None
+    # only targets fast enough to pass the rigid test below (|v_r| within the tolerance of
+    # a prediction above the least speed): the static clutter, most of a recording, is not
+    # placed at all (a 15-minute drive: 1.2 s and 280 MB otherwise)
+    fast = np.flatnonzero(np.abs(targets.radial_velocity_mps)
+                          > _CHECK_MIN_RADIAL_SPEED_MPS - _CHECK_VR_TOLERANCE_MPS)
+    poses = _poses_at_targets(recording, fast, extrinsics, config)
+    world = extrinsics.apply(targets.positions_m[fast])
+    predicted = metrics.rigid_radial_velocity(world, extrinsics, poses.velocities_mps)
+    keep = np.flatnonzero(
+        poses.valid & (np.abs(predicted) > _CHECK_MIN_RADIAL_SPEED_MPS)
+        & (np.abs(targets.radial_velocity_mps[fast] - predicted) <= _CHECK_VR_TOLERANCE_MPS))
+    if keep.size == 0:
+        return None
+    rigid = fast[keep]
+    local = world_to_vehicle(world[keep], poses.positions_m[keep], poses.yaw_rad[keep])
+    x_min, x_max, _, _ = vehicle_box.box_limits(config.vehicle)
+    centre = vehicle_box.vehicle_to_world(
+        np.column_stack([np.full(keep.size, 0.5 * (x_min + x_max)), np.zeros(keep.size)]),
+        poses.positions_m[keep], poses.yaw_rad[keep])
+    stamps = hypotheses.pose_stamps_ns(recording.stamps_of(rigid),
+                                       config.sync.time_offset + extrinsics.time_offset_s)
+    t0 = int(recording.vehicle.stamps_ns[0])
+    return _RigidTargets(
+        local[:, :2], world[keep, :2] - centre, targets.frame_index[rigid],
+        np.hypot(poses.velocities_mps[keep, 0], poses.velocities_mps[keep, 1]),
+        tuple((stamps >= t0 + d.start_s * 1e9) & (stamps <= t0 + d.end_s * 1e9)
+              for d in drives))
 
 
 def check_vehicle_detection(extrinsics: Extrinsics, recording: Recording,

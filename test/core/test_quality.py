@@ -419,6 +419,42 @@ def test_a_calibration_between_two_road_users_side_by_side_is_found() -> None:
     assert quality.company_alongside(over, alone.recording, alone.config) is None
 
 
+def test_a_close_follower_in_the_lane_is_found_and_one_a_second_behind_is_not() -> None:
+    """A car close behind the vehicle on every pass puts its targets where the vehicle's
+    would be with the radar's clock that much late (a fifty-ninth probe's follower 0.5 s
+    behind: the clock 0.05-0.40 s off at 4-10 sigma, and advice to set it): found, with its
+    gap and headway. One 9 m behind (centre to centre) lies beyond the final fit's gate and
+    is left alone, as is no follower."""
+    scene = make_scene(n_passes=5, radial_velocities=True, seed=1)
+    truth, rec, cfg = scene.truth, scene.recording, scene.config
+    index = metrics.track_target_index(scene.tracked, scene.vehicle_track_ids)
+    poses = interpolate_poses(rec.vehicle, rec.target_stamps_ns[index], cfg.sync.max_pose_gap)
+    ahead = np.column_stack([np.cos(poses.yaw_rad), np.sin(poses.yaw_rad),
+                             np.zeros(index.size)])
+    speed = np.hypot(poses.velocities_mps[:, 0], poses.velocities_mps[:, 1])
+
+    def followed(gap_m: float) -> Recording:
+        # the vehicle's own targets, that far behind it along its travel
+        world = truth.apply(rec.targets.positions_m[index]) - gap_m * ahead
+        radial = metrics.rigid_radial_velocity(world, truth, poses.velocities_mps)
+        frame = np.concatenate([rec.targets.frame_index, rec.targets.frame_index[index]])
+        order = np.argsort(frame, kind='stable')
+        return replace(rec, targets=replace(
+            rec.targets,
+            positions_m=np.concatenate([rec.targets.positions_m,
+                                        truth.inverse_apply(world)])[order],
+            radial_velocity_mps=np.concatenate([rec.targets.radial_velocity_mps,
+                                                radial])[order],
+            frame_index=frame[order]))
+
+    assert quality.company_in_line(truth, rec, cfg) is None
+    close = quality.company_in_line(truth, followed(6.0), cfg)
+    assert close is not None and close.drives == close.judged == 5
+    assert close.gap_m == pytest.approx(6.0, abs=0.2)
+    assert close.headway_s == pytest.approx(6.0 / np.median(speed), rel=0.2)
+    assert quality.company_in_line(truth, followed(9.0), cfg) is None
+
+
 def test_one_direction_is_named_as_a_compass_heading() -> None:
     """Pass headings are clockwise from north, as the result's boresight azimuth (an
     eastbound drive was once named 'heading 355 deg', anticlockwise from east)."""
