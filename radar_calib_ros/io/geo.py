@@ -39,19 +39,40 @@ def utm_epsg(lat_deg: float, lon_deg: float) -> int:
     return (32600 if lat_deg >= 0.0 else 32700) + zone
 
 
+#: A UTM zone whose point scale at the site is off 1 by more than this is too far from it
+#: (0.14 m at 70 m of range): the site's own zone's is at most 0.001 off; a neighbour's
+#: near the edge they share as little (common use), but 0.002-0.012 from the far side.
+_FAR_ZONE_SCALE = 0.002
+
+
 def zone_note(frame: LocalFrame) -> str | None:
     """A sentence where ``world.epsg`` names a UTM zone of the other hemisphere than the
     site's: the coordinates are right in it, but a northern zone gives a southern site
     negative northings (and a southern one a northern site 10 000 km of false northing),
     most likely a slip in the parameters file (a seventeenth probe's EPSG:32656 at 33.9 S:
-    northing -3 755 140 m, not a word). None otherwise (a neighbouring zone is common use)."""
+    northing -3 755 140 m, not a word); or a zone so far from the site that its grid's
+    scale there is off by more than ``_FAR_ZONE_SCALE``. None otherwise (a neighbouring
+    zone near the edge it shares with the site's is common use)."""
     zone = pyproj.CRS.from_epsg(frame.epsg).utm_zone
     if zone is None or not (-80.0 <= frame.lat0_deg <= 84.0):
         return None
     south_zone, south_site = zone.upper().endswith('S'), frame.lat0_deg < 0.0
-    if south_zone == south_site:
-        return None
     own = utm_epsg(frame.lat0_deg, frame.lon0_deg)
+    if south_zone == south_site:
+        scale = frame.utm_scale()
+        if abs(scale - 1.0) <= _FAR_ZONE_SCALE:
+            return None
+        # A zone far from the site: the radar's pose is right in it, but its grid is no
+        # longer metres there, so what is placed from the radar lands off by the scale
+        # (a sixty-first probe's 32634 for a site in 32N: 0.33-0.38 m at 70 m; 32623, a
+        # slip for 32632: 14 m, the yaw 78 deg for 32), not a word said.
+        return (f'world.epsg {frame.epsg} (UTM zone {zone}) lies far from the site '
+                f'({abs(frame.lon0_deg):.1f} {"W" if frame.lon0_deg < 0.0 else "E"}): '
+                f'its grid\'s scale there is {scale:.4f}, so positions placed from the '
+                'radar with this result (x_world = R x_sensor + t) are '
+                f'{1000.0 * abs(scale - 1.0):.1f} mm per metre of range off '
+                f'({70.0 * abs(scale - 1.0):.2f} m at 70 m), though the radar\'s own pose is '
+                f'right in that grid. The site\'s own zone is EPSG:{own}.')
     hemisphere = 'southern' if south_zone else 'northern'
     return (f'world.epsg {frame.epsg} is a UTM zone of the {hemisphere} hemisphere ({zone}), '
             f'but the site lies at {abs(frame.lat0_deg):.1f} '
@@ -137,6 +158,10 @@ class LocalFrame:
     def local_convergence_rad(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> F64:
         """Clockwise angle from local grid north to true north at points [rad]."""
         return _convergence(self._local_proj, lat_deg, lon_deg)
+
+    def utm_scale(self) -> float:
+        """The UTM grid's point scale at the frame's origin (1 + its error per metre)."""
+        return float(self._utm_proj.get_factors(self.lon0_deg, self.lat0_deg).meridional_scale)
 
     def utm_convergence_rad(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> F64:
         """Clockwise angle from UTM grid north to true north at points [rad]."""

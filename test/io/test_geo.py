@@ -147,13 +147,28 @@ def test_unknown_epsg_is_a_config_error() -> None:
 
 def test_a_zone_of_the_other_hemisphere_is_noted() -> None:
     """A northern zone for a southern site (negative northings) and the other way round
-    are named with the site's own zone; the site's zone, a neighbour and ETRS89 are not."""
+    are named with the site's own zone; the site's zone, a neighbour near the edge they
+    share and ETRS89 are not."""
     from radar_calib_ros.io.geo import zone_note
     north = zone_note(LocalFrame.at(-33.9, 151.2, 32656))
     assert north is not None and 'northern hemisphere (56N)' in north
     assert '33.9 S' in north and 'negative' in north and 'EPSG:32756' in north
     south = zone_note(LocalFrame.at(48.1, 9.0, 32732))
     assert south is not None and 'southern hemisphere' in south and 'EPSG:32632' in south
-    for lat, lon, epsg in ((-33.9, 151.2, 32756), (-33.9, 151.2, 32755), (48.1, 9.0, 32633),
-                           (48.1, 9.0, 25832)):
+    for lat, lon, epsg in ((-33.9, 151.2, 32756), (-33.9, 151.2, 32755), (48.1, 11.6, 32633),
+                           (48.1, 9.0, 25832), (0.5, 108.0, 32649)):
         assert zone_note(LocalFrame.at(lat, lon, epsg)) is None
+
+
+def test_a_zone_far_from_the_site_is_noted_with_its_scale() -> None:
+    """A zone two away, or a neighbour from the far side of the site's zone: the radar's
+    pose is right in it, but positions placed from the radar land off by the grid's scale
+    (a sixty-first probe's 32634 and 32623 for Munich: 0.35 m and 14 m at 70 m, unsaid)."""
+    from radar_calib_ros.io.geo import zone_note
+    two_away = zone_note(LocalFrame.at(48.1, 11.6, 32634))
+    assert two_away is not None and 'UTM zone 34N' in two_away
+    assert '1.0056' in two_away and '0.39 m at 70 m' in two_away and 'EPSG:32632' in two_away
+    slip = zone_note(LocalFrame.at(48.1, 11.6, 32623))
+    assert slip is not None and '204.0 mm per metre' in slip
+    far_side = zone_note(LocalFrame.at(48.1, 9.0, 32633))
+    assert far_side is not None and '1.0021' in far_side
