@@ -656,6 +656,28 @@ def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:
 _SHORT_DRIVE_S = 20.0
 
 
+def _lattice_note(recording: Recording) -> str | None:
+    """The fixes' latitudes and longitudes on a lattice (``vehicle_track._lattice_m``),
+    with what it costs, else None."""
+    counters = recording.counters
+    if 'fix_lattice_east_mm' not in counters:
+        return None
+    steps = [f'{counters[key] / 1000.0:.2f} m {way}'
+             for key, way in (('fix_lattice_east_mm', 'east'),
+                              ('fix_lattice_north_mm', 'north')) if counters[key]]
+    sigma_m = counters.get('fix_lattice_sigma_mm', 0) / 1000.0
+    cost = (f'with no Odometry to carry the motion between them, each fix is off by up to '
+            f'half a step and the course over ground wobbles with them: the uncertainty counts '
+            f'{_length(sigma_m)} for it'
+            if sigma_m else
+            'the Odometry\'s twist and yaw carry the motion between them, but each fix is '
+            'off by up to half a step')
+    return (f'The fixes\' latitudes and longitudes lie on a lattice, {" and ".join(steps)} '
+            'apart (32-bit floats or rounded decimals on the way, from the receiver to the '
+            f'bag?): {cost}. NavSatFix latitude and longitude are 64-bit floats; record them '
+            'as such.')
+
+
 def _short_drive_note(recording: Recording, config: CalibConfig) -> str | None:
     """Where stage 6 failed on a drive too short for three passes: the cause in the user's
     words (a probe's parked car and one-pass recording read 'hypotheses do not agree' and a
@@ -1025,6 +1047,9 @@ def _data_notes(recording: Recording, corrections: list[str],
             f'({recording.counters.get("mount_turn_frames_left_out", 0)} radar frames before '
             'it left out). Re-aimed on purpose? Then this is the one to use; if not, check '
             'the bracket.')
+    lattice = _lattice_note(recording)
+    if lattice is not None:
+        notes.append(lattice)
     apart_s = recording.counters.get('odometry_other_clock_s')
     if apart_s is not None:
         notes.append(f'The Odometry\'s header stamps lie {abs(apart_s)} s '

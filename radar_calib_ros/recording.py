@@ -131,6 +131,16 @@ class Recording:
 
     @property
     def pose_sigma_m(self) -> tuple[float, float]:
+        """1-sigma (horizontal, vertical) of the vehicle's positions [m]: the fixes' own
+        (``_fix_pose_sigma_m``), and where their latitude and longitude lie on a lattice
+        with no Odometry to carry the motion between its steps, the lattice's
+        (``vehicle_track._lattice_m``) with it."""
+        horizontal, vertical = self._fix_pose_sigma_m
+        lattice_m = 0.001 * self.counters.get('fix_lattice_sigma_mm', 0)
+        return math.hypot(horizontal, lattice_m), vertical
+
+    @property
+    def _fix_pose_sigma_m(self) -> tuple[float, float]:
         """1-sigma (horizontal, vertical) of the vehicle's positions [m]: what the fixes
         declare, else what their NavSatStatus is known for (``NOMINAL_FIX_SIGMA_M``), and at
         least that below RTK.
