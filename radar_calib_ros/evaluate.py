@@ -331,7 +331,28 @@ def evaluate_tracked(recording: Recording, tracked: TrackedTargets,
                       ids, index, n_tracks, errors, recording, tracked, unlike_fraction,
                       paper_alike, notes=tuple(n for n in (
                           _vehicle_note(calibration, config),
-                          _own_recording_note(calibration, recording)) if n is not None))
+                          _own_recording_note(calibration, recording),
+                          _company_note(extrinsics, recording, index, paper, config))
+                          if n is not None))
+
+
+def _company_note(extrinsics: Extrinsics, recording: Recording, index: np.ndarray,
+                  paper: metrics.PaperMetrics, config: CalibConfig) -> str | None:
+    """A sentence where another road user kept pace alongside the vehicle and joined its
+    tracks (``quality.company_in_tracks``): its targets count against r_i and delta_op.
+
+    Why: a sixtieth probe's good calibration (0.28 m) evaluated on a drive with a car
+    alongside read r_i 0.30 and delta_op 1.7-2.2 m (0.67 / 0.42 on a clean one), with no
+    word of why; a user would have thrown it away."""
+    company = quality.company_in_tracks(extrinsics, recording, index, paper, config)
+    if company is None:
+        return None
+    share, side, rest_m = company
+    return (f'{100 * share:.0f} % of the targets in the vehicle\'s tracks lie a lane or more '
+            f'{side} its box, moving with it: another road user kept pace alongside and joined '
+            'its tracks, and its targets count against r_i and delta_op (without them '
+            f'delta_op is {rest_m:.2f} m). Judge by the verdict, or evaluate on a drive '
+            'without such company')
 
 
 def _own_recording_note(calibration: Mapping[str, Any], recording: Recording) -> str | None:

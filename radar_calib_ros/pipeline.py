@@ -423,6 +423,7 @@ _IN_LINE_CLOCK_SHARE = 0.5
 
 
 def _in_line_note(in_line: quality.InLine) -> str:
+    """The note for a close follower or leader (``quality.company_in_line``)."""
     return (f'Another road user followed or led the vehicle closely in its lane on '
             f'{in_line.drives} of its {in_line.judged} drives through the view, '
             f'{in_line.gap_m:.1f} m centre to centre ({in_line.headway_s:.2f} s at its speed). '

@@ -407,6 +407,23 @@ def test_company_on_one_side_in_the_world_cannot_tell(
     assert '3.2 m apart' in g.reason and 'between them' in g.reason
 
 
+def test_company_in_the_vehicles_tracks_is_said_beside_the_figures(
+        sim: SimulationSummary, config: CalibConfig, recording: Recording,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A car alongside joined the vehicle's tracks: r_i and delta_op count its targets (a
+    sixtieth probe's good calibration read r_i 0.30, delta_op 1.7 m, with no word why).
+    A clean drive says nothing of it."""
+    truth = load_ground_truth(sim.paths.bag)
+    assert truth is not None
+    clean = evaluate.evaluate_recording(recording, _calibration(truth), config)
+    assert not any('kept pace alongside' in n for n in clean.notes)
+    monkeypatch.setattr(evaluate.quality, 'company_in_tracks',
+                        lambda *a: (0.36, 'to the left of', 0.45))
+    noted = evaluate.evaluate_recording(recording, _calibration(truth), config)
+    assert any('36 % of the targets in the vehicle\'s tracks lie a lane or more to the left '
+               'of its box' in n and 'delta_op is 0.45 m' in n for n in noted.notes)
+
+
 def test_stated_sigmas_fall_back_to_the_rms_angle() -> None:
     """Results written before the per-axis rotation sigmas hold only the RMS angle: it
     bounds each axis. A file without any (a surveyed calibration) states none."""

@@ -637,6 +637,17 @@ _BESIDE_SHARE = 0.15
 _BESIDE_BIAS_SHARE = 0.5
 
 
+def company_in_tracks(extrinsics: Extrinsics, recording: Recording, index: I64,
+                      paper: metrics.PaperMetrics, config: CalibConfig
+                      ) -> tuple[float, str, float] | None:
+    """``_misfit_beside`` where the paper's figures ``paper`` of the targets ``index`` show
+    a box misfit (delta_op beyond ``_BOX_MISFIT_M`` with at most half inside), else None."""
+    if not (paper.inlier_ratio <= _BOX_MISFIT_INSIDE
+            and paper.outlier_distance_m > _BOX_MISFIT_M):
+        return None
+    return _misfit_beside(extrinsics, recording, index, config)
+
+
 def _misfit_beside(extrinsics: Extrinsics, recording: Recording, index: I64,
                    config: CalibConfig) -> tuple[float, str, float] | None:
     """(share of the tracks' targets beyond ``_BESIDE_M`` to a side of the box, which side,
