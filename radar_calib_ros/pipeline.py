@@ -1051,6 +1051,11 @@ def _data_notes(recording: Recording, corrections: list[str],
     lattice = _lattice_note(recording)
     if lattice is not None:
         notes.append(lattice)
+    glitches = recording.counters.get('odometry_twist_glitches', 0)
+    if glitches:
+        notes.append(f'{glitches} Odometry messages carry a twist beyond 100 m/s (360 km/h), '
+                     'which no road vehicle drives: left out. Check the driver that '
+                     'publishes the Odometry.')
     apart_s = recording.counters.get('odometry_other_clock_s')
     if apart_s is not None:
         notes.append(f'The Odometry\'s header stamps lie {abs(apart_s)} s '
