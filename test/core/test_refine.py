@@ -1712,7 +1712,7 @@ def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
         monkeypatch: pytest.MonkeyPatch, moved_deg: float, spread_m: float,
         held: bool, lanes_m: float | None) -> None:
     """Fitted along one road, a tilt far from the road plane's is refitted held at the
-    plane, and the difference joins the covariance as its 2 sigma; on a two-way road with
+    plane, and the difference joins the covariance as its 1 sigma; on a two-way road with
     the plane's own roll about the road (the front/rear height difference over the two
     directions' lanes' separation) swinging the position. A tilt near the plane, or views
     spread across the junction, keep the fit."""
@@ -1736,7 +1736,7 @@ def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
         return
     assert calls == [None, refine._HELD_TILT_DEG]
     assert out.extrinsics.translation_m[2] == 6.0
-    # half the difference is one sigma: 1.25 deg of tilt, 0.4 m of altitude; the plane's
+    # the difference is one sigma: 2.5 deg of tilt, 0.8 m of altitude; the plane's
     # roll about the road (east) on a two-way road: 0.1 m over the lanes' 3.6 m, 1.6 deg,
     # swings the targets 3 m left and 6 m below the radar, so the radar 6x across and 3x
     # down; a one-way road: none
@@ -1745,11 +1745,11 @@ def test_a_tilt_the_views_of_one_road_cannot_show_is_held_at_the_road_plane(
     assert math.degrees(roll) == pytest.approx(0.0 if lanes_m is None else 1.59, abs=0.01)
     tilt = math.sqrt(out.covariance[0, 0] + out.covariance[1, 1])
     assert math.degrees(tilt) == pytest.approx(
-        math.hypot(1.25, math.degrees(roll), math.degrees(math.sqrt(2e-5))), rel=0.01)
+        math.hypot(2.5, math.degrees(roll), math.degrees(math.sqrt(2e-5))), rel=0.01)
     assert math.sqrt(out.covariance[4, 4]) == pytest.approx(math.hypot(6 * roll, 0.0316),
                                                             rel=0.02)
     assert math.sqrt(out.covariance[5, 5]) == pytest.approx(
-        math.sqrt(0.4 ** 2 + 0.001 + (3 * roll) ** 2), rel=0.02)
+        math.sqrt(0.8 ** 2 + 0.001 + (3 * roll) ** 2), rel=0.02)
     assert out.covariance[0, 4] == pytest.approx(-6 * roll ** 2, rel=0.02, abs=1e-12)
     assert out.diagnostics['tilt_held']['moved_deg'] == moved_deg
     assert out.diagnostics['advice'][0].startswith('The vehicle was seen along one road only')
