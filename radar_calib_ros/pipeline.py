@@ -2048,10 +2048,12 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                     'rate and the clocks before trusting the position along the travel.')
     with stage('quality'):
         detection = quality.check_vehicle_detection(current, recording, config)
-        company = quality.company_alongside(current, recording, config)
+        # (one selection of the targets moving with the vehicle for both company checks)
+        rigid = quality.rigid_with_the_vehicle(current, recording, config)
+        company = quality.company_alongside(current, recording, config, rigid)
         if company is not None:
             raise InsufficientDataError('quality', _company_reason(company))
-        in_line = (quality.company_in_line(current, recording, config)
+        in_line = (quality.company_in_line(current, recording, config, rigid)
                    if refinement is not None and config.sync.estimate_time_offset else None)
         if in_line is not None:
             # the clock the fit found is as much the headway's: not one to set

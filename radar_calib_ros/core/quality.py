@@ -1167,8 +1167,8 @@ class Company:
     between: bool = False
 
 
-def company_alongside(extrinsics: Extrinsics, recording: Recording,
-                      config: CalibConfig) -> Company | None:
+def company_alongside(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
+                      rigid: RigidTargets | None = None) -> Company | None:
     """The road user that kept pace beside the vehicle, always on the same side in the
     world, where there is one (see ``_COMPANY_SIDE_M``), else None.
 
@@ -1179,7 +1179,7 @@ def company_alongside(extrinsics: Extrinsics, recording: Recording,
     view on other roads, the road user's offset turns with them and the tracks tell them
     apart (the same probe's junction drives: all within 2 sigma).
     """
-    rigid = _rigid_with_the_vehicle(extrinsics, recording, config)
+    rigid = rigid or rigid_with_the_vehicle(extrinsics, recording, config)
     if rigid is None:
         return None
     local, offset, frame, drives = rigid.local_m, rigid.offset_m, rigid.frame, rigid.drives
@@ -1292,8 +1292,8 @@ class InLine:
     headway_s: float
 
 
-def company_in_line(extrinsics: Extrinsics, recording: Recording,
-                    config: CalibConfig) -> InLine | None:
+def company_in_line(extrinsics: Extrinsics, recording: Recording, config: CalibConfig,
+                    rigid: RigidTargets | None = None) -> InLine | None:
     """The road user that followed (or led) the vehicle closely in its lane on half the
     drives or more (see ``_IN_LINE_REACH_M``), where there is one, else None.
 
@@ -1304,7 +1304,7 @@ def company_in_line(extrinsics: Extrinsics, recording: Recording,
     (the truth +0.03). Found whatever the clock: the two keep their distance along the
     travel however the box is moved between them.
     """
-    rigid = _rigid_with_the_vehicle(extrinsics, recording, config)
+    rigid = rigid or rigid_with_the_vehicle(extrinsics, recording, config)
     if rigid is None:
         return None
     x_min, x_max, y_min, y_max = vehicle_box.box_limits(config.vehicle)
@@ -1335,7 +1335,7 @@ def company_in_line(extrinsics: Extrinsics, recording: Recording,
 
 
 @dataclass(frozen=True, slots=True)
-class _RigidTargets:
+class RigidTargets:
     """Targets that move with the vehicle (its rigid radial velocity) under a calibration:
     in its frame (``local_m``, (n, 2): forward, left), from its box's centre in the world
     (``offset_m``, (n, 2): E, N), their radar frames, the vehicle's speed at them [m/s], and
@@ -1348,8 +1348,8 @@ class _RigidTargets:
     drives: tuple[np.ndarray, ...]
 
 
-def _rigid_with_the_vehicle(extrinsics: Extrinsics, recording: Recording,
-                            config: CalibConfig) -> _RigidTargets | None:
+def rigid_with_the_vehicle(extrinsics: Extrinsics, recording: Recording,
+                           config: CalibConfig) -> RigidTargets | None:
     """The targets moving with the vehicle on its drives through the view, as the company
     checks judge them (None with fewer than two drives or no such target)."""
     drives = drives_through_view(extrinsics, recording, np.zeros(0, np.int64), config)
@@ -1378,7 +1378,7 @@ def _rigid_with_the_vehicle(extrinsics: Extrinsics, recording: Recording,
     stamps = hypotheses.pose_stamps_ns(recording.stamps_of(rigid),
                                        config.sync.time_offset + extrinsics.time_offset_s)
     t0 = int(recording.vehicle.stamps_ns[0])
-    return _RigidTargets(
+    return RigidTargets(
         local[:, :2], world[keep, :2] - centre, targets.frame_index[rigid],
         np.hypot(poses.velocities_mps[keep, 0], poses.velocities_mps[keep, 1]),
         tuple((stamps >= t0 + d.start_s * 1e9) & (stamps <= t0 + d.end_s * 1e9)
