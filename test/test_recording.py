@@ -970,13 +970,10 @@ def test_exact_copies_of_radar_messages_are_dropped_not_merged() -> None:
     assert any('1 radar messages shared their header stamp' in n for n in notes)
 
 
-def test_odometry_samples_with_a_twist_no_vehicle_drives_are_left_out() -> None:
-    """A driver's glitch: one twist of -13 500 m/s at the end of each pass (a sixtieth
-    probe's, 8 of 17 784 samples) read as a twist speed 26 % off, every twist was
-    'rescaled', and the calibration was refused for radial velocities that were not the
-    vehicle's. The glitches are left out and named; the exact twist is left as it is."""
-    from radar_calib_ros.pipeline import _data_notes
-
+def _straight_braking_drive(
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """A minute straight on at 30 deg, accelerating and braking (8 +- 2 m/s), sampled at
+    50 Hz with RTK noise: (t, speed, lat, lon, alt, the true yaw)."""
     frame = LocalFrame.at(LAT0, LON0)
     t = np.arange(0.0, 60.0, 0.02)
     heading = math.radians(30.0)
@@ -987,6 +984,17 @@ def test_odometry_samples_with_a_twist_no_vehicle_drives_are_left_out() -> None:
     local = np.column_stack([xy + rng.normal(0.0, 0.02, xy.shape), np.zeros(t.size)])
     lat, lon, alt = frame.local_to_geodetic(local)
     yaw_true = heading + float(frame.local_convergence_rad(lat[:1], lon[:1])[0])
+    return t, speed, lat, lon, alt, yaw_true
+
+
+def test_odometry_samples_with_a_twist_no_vehicle_drives_are_left_out() -> None:
+    """A driver's glitch: one twist of -13 500 m/s at the end of each pass (a sixtieth
+    probe's, 8 of 17 784 samples) read as a twist speed 26 % off, every twist was
+    'rescaled', and the calibration was refused for radial velocities that were not the
+    vehicle's. The glitches are left out and named; the exact twist is left as it is."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    t, speed, lat, lon, alt, yaw_true = _straight_braking_drive()
     builder = RecordingBuilder(CalibConfig())
     _one_frame(builder)
     glitches = {500, 1500, 2500}
@@ -1009,16 +1017,7 @@ def test_an_odometry_speed_scale_error_is_rescaled_to_the_fixes(
         scale: float, expected: int | None) -> None:
     """Wheel odometry 1 % fast would tilt the fitted pitch by about half a degree: on
     straight driving the twist speed is brought to the fixes'; within 0.3 % it is left."""
-    frame = LocalFrame.at(LAT0, LON0)
-    t = np.arange(0.0, 60.0, 0.02)
-    heading = math.radians(30.0)
-    speed = 8.0 + 2.0 * np.sin(t / 5.0)      # accelerating and braking
-    s = np.cumsum(speed) * 0.02
-    xy = s[:, None] * np.array([math.cos(heading), math.sin(heading)])
-    rng = np.random.default_rng(4)
-    local = np.column_stack([xy + rng.normal(0.0, 0.02, xy.shape), np.zeros(t.size)])
-    lat, lon, alt = frame.local_to_geodetic(local)
-    yaw_true = heading + float(frame.local_convergence_rad(lat[:1], lon[:1])[0])
+    t, speed, lat, lon, alt, yaw_true = _straight_braking_drive()
     builder = RecordingBuilder(CalibConfig())
     _one_frame(builder)
     for i in range(t.size):
