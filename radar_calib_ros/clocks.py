@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from radar_calib_ros.core._splits import two_piece_rss
 from radar_calib_ros.types import F64, I64
 
 #: A lasting fall of a stream's header stamps against the recorder's clock of more than
@@ -218,7 +219,9 @@ def _small_clock_step(radar_lag: I64, radar_received: I64, pose_lag: I64,
     # 0.38 s) ramps the lag, whose halves differ by half the ramp wherever it is split; two
     # constant offsets then explain it no better than a line (a fifty-eighth probe's drift
     # was named a reboot's jump 10 s into the drive, in 4 runs of 4).
-    if _best_step_rss(smooth) >= _STEP_OVER_LINE ** 2 * _line_rss(received, smooth):
+    # (what the best step leaves against what a line leaves)
+    if (float(np.min(two_piece_rss(smooth)))
+            >= _STEP_OVER_LINE ** 2 * _line_rss(received, smooth)):
         return None
     if _pose_lag_stepped(pose_lag, pose_received, int(received[k]), step):
         return None
@@ -237,21 +240,6 @@ def _line_rss(received: I64, values: F64) -> float:
     with np.errstate(all='ignore'):
         slope = float(np.dot(t, centred)) / spread if spread > 0 else 0.0
         return float(np.sum((centred - slope * t) ** 2))
-
-
-def _best_step_rss(values: F64) -> float:
-    """The residual sum of squares of ``values`` about the best two constant pieces (the
-    split anywhere): what a step leaves."""
-    n = values.size
-    if n < 2:
-        return 0.0
-    with np.errstate(all='ignore'):
-        centred = values - values.mean()
-        cum, cum_sq = np.cumsum(centred), np.cumsum(centred ** 2)
-        j = np.arange(1, n)
-        left = cum_sq[:-1] - cum[:-1] ** 2 / j
-        right = (cum_sq[-1] - cum_sq[:-1]) - (cum[-1] - cum[:-1]) ** 2 / (n - j)
-        return float(np.min(left + right))
 
 
 @dataclass(frozen=True)

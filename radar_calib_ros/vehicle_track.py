@@ -1841,14 +1841,14 @@ def _fix_lag(t: F64, v_fix: F64, to: F64, yaw: F64, v_level: F64,
             return float(arm[0]), float(arm[1])
         return None
 
-    # with a lever arm first; where none shows, the lag alone (a free lever arm of a few
-    # centimetres moved the slow_gnss scenario's lag from 118 to 127 ms; the truth is 120)
     def along_misfit(lag: float) -> float:
         """The misfit along the travel without an arm: what a change of speed says."""
         matched = matched_at(lag, False)[0]
         heading = matched / np.maximum(np.linalg.norm(matched, axis=1), 1e-9)[:, None]
         return float(np.mean(np.sum((vu - matched) * heading, axis=1) ** 2))
 
+    # with a lever arm first; where none shows, the lag alone (a free lever arm of a few
+    # centimetres moved the slow_gnss scenario's lag from 118 to 127 ms; the truth is 120)
     lag = best_lag(True)
     lever_arm = None if lag is None else significant_arm(lag)
     if lever_arm is None:

@@ -25,6 +25,7 @@ from radar_calib_ros import metrics
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import hypotheses, polygon, registration, uncertainty
 from radar_calib_ros.core import vehicle as vehicle_box
+from radar_calib_ros.core._splits import two_piece_rss
 from radar_calib_ros.core.vehicle import box_distance, world_to_vehicle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
@@ -1254,12 +1255,7 @@ def _two_groups(values: F64, frame: I64, min_apart: float) -> tuple[I64, I64] | 
         return None
     order = np.argsort(values)
     y = values[order]
-    k = np.arange(1, y.size)
-    head = np.cumsum(y)[:-1]
-    head_sq = np.cumsum(y ** 2)[:-1]
-    tail, tail_sq = y.sum() - head, (y ** 2).sum() - head_sq
-    within = head_sq - head ** 2 / k + tail_sq - tail ** 2 / (y.size - k)
-    cut = int(np.argmin(within)) + 1
+    cut = int(np.argmin(two_piece_rss(y))) + 1
     if y[cut:].mean() - y[:cut].mean() < min_apart:
         return None
     groups = (order[:cut], order[cut:])
