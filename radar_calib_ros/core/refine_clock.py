@@ -28,14 +28,12 @@ _LOG = logging.getLogger(__name__)
 
 # --- the clock offset's starting value --------------------------------------------------
 
-def _scan_time_offset(est: Extrinsics, candidates: I64, times: _Times, recording: Recording,
-                      poses: _Poses, config: CalibConfig) -> float:
-    """Coarse start for the clock offset: the offset that puts the most moving targets near
-    the box (soft count). The fit itself refines it; the scan only keeps a large offset
-    (vehicle displaced by metres) from starving the gate."""
+def _time_offset_scores(est: Extrinsics, candidates: I64, times: _Times,
+                        recording: Recording, poses: _Poses, config: CalibConfig
+                        ) -> tuple[F64, F64]:
+    """Clock offsets (sorted) and the soft count of moving targets near the box at each,
+    for ``est``'s rotation and position."""
     max_off = config.sync.max_time_offset
-    if max_off <= 0.0 or candidates.size == 0:
-        return est.time_offset_s
     # around the bound's centre, and around where stage 6 found agreement (beyond the bound
     # when the fixes' and the Odometry's stamps disagree: ``pipeline._hypotheses``)
     grid = np.union1d(np.arange(-max_off, max_off + 1e-9, 0.02),
@@ -47,11 +45,37 @@ def _scan_time_offset(est: Extrinsics, candidates: I64, times: _Times, recording
         pos, yaw, _, _, _ = times.poses(poses, tau)
         dist = box_distance(_vehicle_frame(world, pos, yaw)[:, :2], config.vehicle)
         scores[i] = np.sum(np.clip(1.0 - dist / gate, 0.0, 1.0) * times.valid(poses, tau))
+    return grid, scores
+
+
+def _scan_time_offset(est: Extrinsics, candidates: I64, times: _Times, recording: Recording,
+                      poses: _Poses, config: CalibConfig) -> float:
+    """Coarse start for the clock offset: the offset that puts the most moving targets near
+    the box (soft count). The fit itself refines it; the scan only keeps a large offset
+    (vehicle displaced by metres) from starving the gate."""
+    if config.sync.max_time_offset <= 0.0 or candidates.size == 0:
+        return est.time_offset_s
+    grid, scores = _time_offset_scores(est, candidates, times, recording, poses, config)
     best = float(grid[int(np.argmax(scores))])
     # A flat score (no information) keeps the given offset.
     if scores.max() <= 1.001 * scores[int(np.argmin(np.abs(grid - est.time_offset_s)))]:
         return est.time_offset_s
     return best
+
+
+def _rescan_time_offset(est: Extrinsics, candidates: I64, times: _Times,
+                        recording: Recording, poses: _Poses, config: CalibConfig
+                        ) -> float | None:
+    """The scan's offset at a fitted rotation and position (``refine._clock_restarted``);
+    None where it is no peak: a flat score, or the end of the scanned range."""
+    if config.sync.max_time_offset <= 0.0 or candidates.size == 0:
+        return None
+    grid, scores = _time_offset_scores(est, candidates, times, recording, poses, config)
+    best = int(np.argmax(scores))
+    if best in (0, grid.size - 1) or scores[best] <= 1.001 * scores[
+            int(np.argmin(np.abs(grid - est.time_offset_s)))]:
+        return None
+    return float(grid[best])
 
 
 # --- clock drift and steps --------------------------------------------------------------

@@ -1271,6 +1271,10 @@ def test_a_clock_offset_the_drives_cannot_show_is_held_not_fitted() -> None:
                        initial_error=(0.3, 1.0, 0.0))
     ref = _run(scene)
     assert ref.diagnostics['time_offset_held_sigma_s'] > refine._TAU_HOLD_SIGMA_S
+    # a guess within the searched range, and said so in the covariance
+    held = scene.config.sync.max_time_offset / math.sqrt(3.0)
+    assert ref.diagnostics['time_offset_held_sigma_s'] >= held
+    assert ref.covariance[6, 6] >= 0.99 * held ** 2
     assert ref.extrinsics.time_offset_s == pytest.approx(scene.initial.time_offset_s,
                                                          abs=1e-4)
     err = errors(ref.extrinsics, scene.truth)
@@ -2113,3 +2117,58 @@ def test_places_the_vehicle_drove_hidden_from_the_radar_are_not_advised() -> Non
     assert not hidden[(x < 35.0) | (x > 65.0)].any()     # seen, or before the radar's span
     inside = x > 50.0
     assert not refine_diagnostics._hidden(recording, inside, seen_at)[~inside].any()
+
+
+def _clock_fit(tau: float, cost: float, n_targets: int,
+               rescan: float | None = None) -> Any:
+    from radar_calib_ros.types import Refinement
+    diagnostics: dict[str, Any] = {'cost_per_target': cost}
+    if rescan is not None:
+        diagnostics['clock_rescan_s'] = rescan
+    return Refinement(Extrinsics(np.eye(3), np.zeros(3), tau), np.eye(7), n_targets, 5,
+                      diagnostics=diagnostics)
+
+
+def test_a_clock_offset_rescanned_far_from_the_fitted_one_starts_a_second_fit() -> None:
+    """Scanned again at the fitted position, the clock offset that puts the most targets on
+    the box starts a second fit where it lies beyond 40 ms of the fitted one; that fit is
+    kept only where it explains its targets better, over about as many of them."""
+    initial = Extrinsics(np.eye(3), np.array([1.0, 2.0, 3.0]), 0.0)
+    starts: list[Extrinsics] = []
+
+    def refit_to(other: Any) -> Any:
+        def refit(start: Extrinsics) -> Any:
+            starts.append(start)
+            return other
+        return refit
+
+    near = _clock_fit(0.225, 3.0, 4600, rescan=0.20)
+    assert refine._clock_restarted(initial, near, refit_to(None)) == (initial, near)
+    assert not starts                                    # within 40 ms: no second fit
+    first = _clock_fit(0.225, 3.0, 4600, rescan=0.165)
+    better = _clock_fit(0.157, 2.7, 4700)
+    start, kept = refine._clock_restarted(initial, first, refit_to(better))
+    assert kept is better and start.time_offset_s == 0.165
+    np.testing.assert_array_equal(start.translation_m, initial.translation_m)
+    assert starts[-1] is start
+    assert better.diagnostics['clock_restart_s'] == [0.225, 0.165]
+    for worse in (_clock_fit(0.16, 3.1, 4700),           # a higher cost per target
+                  _clock_fit(0.16, 2.7, 4400)):          # fewer targets (gated away)
+        assert refine._clock_restarted(initial, first, refit_to(worse)) == (initial, first)
+
+    def fails(start: Extrinsics) -> Any:
+        raise InsufficientDataError('refine', 'nothing near the box')
+    assert refine._clock_restarted(initial, first, fails) == (initial, first)
+
+
+def test_a_held_clock_offset_moves_the_position_along_the_mean_travel() -> None:
+    """Held, the clock offset's error moves stage 6's radar against the vehicles' mean
+    velocity (one way at 10 m/s: 10 m per second of it); drives both ways cancel."""
+    one_way = refine._held_clock_shift(np.tile([10.0, 0.0, 0.0], (50, 1)), np.ones(50))
+    assert one_way[3, 3] == pytest.approx(100.0) and one_way[4, 4] == pytest.approx(0.0)
+    assert one_way[6, 6] == 1.0 and one_way[3, 6] == pytest.approx(-10.0)
+    assert np.allclose(one_way[:3], 0.0) and one_way[5, 5] == 0.0
+    both = refine._held_clock_shift(np.vstack([np.tile([0.0, 8.0, 0.0], (30, 1)),
+                                               np.tile([0.0, -8.0, 0.0], (30, 1))]),
+                                    np.ones(60))
+    assert np.allclose(both[3:5, 3:5], 0.0) and both[6, 6] == 1.0
