@@ -1606,6 +1606,8 @@ def _stage_6_lead(err: InsufficientDataError,
 #: hypotheses metres, and it had company on 3 of 5 passes at best, as chance has.
 _NEVER_IN_VIEW_CLOCK_S = 1.0
 _NEVER_IN_VIEW_CLOCK_STEP_S = 0.25
+#: Fewest passes through the view (under the best of the hypotheses) the claim is made on.
+_NEVER_IN_VIEW_MIN_PASSES = 3
 
 
 def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
@@ -1644,6 +1646,12 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
     wide = [c for c in companies if c.in_view >= 2]
     # the most passes any of them had company on
     best = max(wide, key=lambda c: (c.met, c.met / c.in_view))
+    if max(c.in_view for c in wide) < _NEVER_IN_VIEW_MIN_PASSES:
+        # two passes through the view, one of them alone, show nothing: a car creeping at
+        # 0.5-1.5 m/s breaks into tracks that keep it no company (a sixty-fourth probe's
+        # car park: in view for 240 s, 33 808 of its targets, told 'never in the radar's
+        # view' for what was two passes where three are needed); the stages' reason stands
+        return None
     travel = _frame_travel(recording)[0]
     if travel > _FRAME_TRAVEL_M:
         # A vehicle that drives metres between frames breaks into short tracks whose

@@ -93,9 +93,9 @@ from radar_calib_ros.core.refine_clock import (_clock_drift, _clock_step, _mid_r
                                                _rescan_time_offset, _scan_time_offset)
 from radar_calib_ros.core.refine_covariance import (
     _VELOCITY_SUSPECTS, _check_not_diverged, _Diverged, _halves_disagreement, _halves_shift,
-    _height_difference_shift, _height_shift, _lane_separation, _line_axis, _pose_block,
-    _position_spread, _range_bands, _start_term, _turn_between_passes, _yaw_rate_shift,
-    _yaw_step_between_passes, along_boresight_share, start_error_m)
+    _height_difference_shift, _height_shift, _jackknife_groups, _lane_separation, _line_axis,
+    _pose_block, _position_spread, _range_bands, _start_term, _turn_between_passes,
+    _yaw_rate_shift, _yaw_step_between_passes, along_boresight_share, start_error_m)
 from radar_calib_ros.core.refine_diagnostics import _diagnostics
 from radar_calib_ros.core.refine_model import (
     _START_SIGMA_M, ClockDrift, _anchor, _change, _Fit, _Model, _parameter_sigma, _priors,
@@ -857,15 +857,28 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                                                prior_term=False)
     halves_shift = _halves_shift(pc, jp.T @ jp)
     heading = poses.at(data.times.frame_t + est.time_offset_s)[1][data.times.inverse]
+    # the agreement the covariance measures: across passes, or the headings of one or two
+    # (the passes themselves stay what the halves, clock and mount checks compare). The
+    # headings of one drive share its errors (its clock, how the car reflected that day),
+    # so they count as no more than the passes they come from: the variance is raised by
+    # their ratio, the design effect of groups correlated within a pass (without it a
+    # sixty-fourth probe's two ten-metre-per-second loops were 11-16 cm off at a reported
+    # 6 cm).
+    groups = _jackknife_groups(data.pass_id, heading)
+    pg = pc
+    if not np.array_equal(groups, data.pass_id):
+        pg = uncertainty.pass_jackknife_covariance(
+            j * w[:, None], r * w, np.concatenate([np.repeat(groups, 3), groups]), jp.T @ jp)
+        pg = dataclasses.replace(pg, covariance=pg.covariance * (pg.n_passes / pc.n_passes))
     along_share = along_boresight_share(heading, data.sqrt_weight ** 2, math.atan2(
         est.rotation[1, 0], est.rotation[0, 0]))
     # a position held at the paper's estimate (every drive along the boresight) may be the
     # whole car length off, whatever the share
     start_error = (config.vehicle.length if start_sigma_m < _START_SIGMA_M
                    else start_error_m(along_share, config))
-    start_term = _start_term(pc, jp.T @ jp, config, start_sigma_m, start_error)
-    covariance = uncertainty.shrink_correlations(uncertainty.combined_covariance(pc, pb),
-                                                 pc.n_passes) + start_term
+    start_term = _start_term(pg, jp.T @ jp, config, start_sigma_m, start_error)
+    covariance = uncertainty.shrink_correlations(uncertainty.combined_covariance(pg, pb),
+                                                 pg.n_passes) + start_term
     cov7 = uncertainty.add_along_boresight(_pose_block(covariance, estimate_tau), est.rotation,
                                            cfg.model_sigma_along_m)
     cov7 = uncertainty.add_tilt(cov7, math.radians(cfg.model_sigma_tilt_deg))

@@ -2161,6 +2161,26 @@ def test_a_clock_offset_rescanned_far_from_the_fitted_one_starts_a_second_fit() 
     assert refine._clock_restarted(initial, first, fails) == (initial, first)
 
 
+def test_one_or_two_passes_are_left_out_by_heading_in_the_jackknife() -> None:
+    """A car looping inside the view is one drive through it: the jackknife leaves out the
+    stretches of one heading (45 deg steps) instead, each pass on its own; three passes or
+    more are left as they are."""
+    loop = np.linspace(0.0, 2.0 * np.pi, 400)            # one turn round a car park
+    groups = refine_covariance._jackknife_groups(np.zeros(400, np.int64), loop)
+    assert np.unique(groups).size == 9                   # 0, 45, ..., 360 deg
+    assert (np.diff(groups) >= 0).all() and groups[0] == 0
+    # two passes, one straight and one turning through 90 deg: the straight one stays whole
+    two = np.repeat([0, 1], 200)
+    heading = np.concatenate([np.full(200, 1.0), np.linspace(-1.0, -1.0 + np.pi / 2, 200)])
+    groups = refine_covariance._jackknife_groups(two, heading)
+    assert np.unique(groups[:200]).size == 1
+    assert np.unique(groups[200:]).size == 3
+    assert not set(groups[:200]) & set(groups[200:])
+    three = np.repeat([0, 1, 2], 100)
+    np.testing.assert_array_equal(
+        refine_covariance._jackknife_groups(three, np.linspace(0.0, 6.0, 300)), three)
+
+
 def test_a_held_clock_offset_moves_the_position_along_the_mean_travel() -> None:
     """Held, the clock offset's error moves stage 6's radar against the vehicles' mean
     velocity (one way at 10 m/s: 10 m per second of it); drives both ways cancel."""
