@@ -1989,7 +1989,8 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
     if config.refine.final:
         with stage('refine'):
             refinement = refine.refine_extrinsics(current, recording, tracked, selection,
-                                                  config, ground_normal=ground.normal)
+                                                  config, ground_normal=ground.normal,
+                                                  plane_sigma_deg=ground.tilt_sigma_deg)
             if (closest is not None and refinement.diagnostics['sigma_along_boresight_m']
                     >= uncertainty.OPEN_ALONG_BORESIGHT_M):
                 # The drives leave the position along the boresight to where the fit
@@ -1997,14 +1998,15 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                 with suppress(InsufficientDataError):
                     refinement = refine.refine_extrinsics(
                         polygon.bracketed_start(closest, current), recording, tracked,
-                        selection, config, ground_normal=ground.normal)
+                        selection, config, ground_normal=ground.normal,
+                        plane_sigma_deg=ground.tilt_sigma_deg)
             bias = refinement.diagnostics.get('azimuth_bias')
             if refine_noise.significant_azimuth_bias(bias):
                 corrected = azimuth_corrected(recording, bias)
                 with suppress(InsufficientDataError):
                     refinement = refine.refine_extrinsics(
                         refinement.extrinsics, corrected, tracked, selection, config,
-                        ground_normal=ground.normal)
+                        ground_normal=ground.normal, plane_sigma_deg=ground.tilt_sigma_deg)
                     recording = corrected
                     refinement.diagnostics['azimuth_bias_corrected'] = bias
                     corrections.append(_azimuth_bias_note(bias))

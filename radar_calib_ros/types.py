@@ -180,7 +180,9 @@ class GroundPlane:
     normal : (3,) unit normal, pointing up (towards the sensor side); offset_m: signed
     distance of the plane from the sensor along ``normal`` (negative: the road is below);
     rotation_level : (3, 3) R_αβ, rotates sensor coordinates so the normal becomes +z;
-    used : (k,) indices of the targets that survived the density filter.
+    used : (k,) indices of the targets that survived the density filter; tilt_sigma_deg:
+    how far another plane the data hold (the road users' alone) lies from it [deg], where
+    the two could not be told apart (0 where they agree or one was chosen).
     """
 
     normal: F64
@@ -188,6 +190,7 @@ class GroundPlane:
     rotation_level: F64
     density_threshold: float
     used: I64
+    tilt_sigma_deg: float = 0.0
 
     def __post_init__(self) -> None:
         _freeze(self)

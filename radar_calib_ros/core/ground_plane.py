@@ -256,6 +256,9 @@ _MIN_ROAD_USER_TARGETS = 500
 #: their plane to replace that of all moving targets: a plane along one road turns about
 #: it by a lane-to-lane height difference of 0.3 m over 6 m by 3 deg, past the 1.5 above.
 _ROAD_PLANE_MIN_WIDTH_M = 6.0
+#: Largest uncertainty given the plane where the two could not be told apart [deg]: the
+#: plane of targets along one lane is undetermined about it (80 deg from the other seen).
+_PLANE_SIGMA_MAX_DEG = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -350,7 +353,12 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         # plane of all moving targets was 0.1 deg off.
         _LOG.info('the road users\' tracks lie along one road (%.1f m across): the plane of '
                   'all moving targets is kept, %.1f deg from theirs', width, tilt)
-        return ground, None
+        # which of the two is the road's the data cannot say (with no other traffic the
+        # first is clutter's: a sixty-fifth probe's one-lane road, 8.9 deg apart, the tilt
+        # held 15 deg off at a reported 0.6): the difference is the plane's uncertainty,
+        # up to a cap (one lane's plane may turn any way about it)
+        return dataclasses.replace(ground, tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)
+                                   ), None
     used = np.flatnonzero(road_users)[roads.used]
     return (dataclasses.replace(roads, used=used.astype(np.int64)),
             MovingClutter(float(1.0 - road_users.mean()), tilt))

@@ -180,7 +180,8 @@ _MIN_LANE_SEPARATION_M = 2.0
 
 def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                       selection: HypothesisSelection, config: CalibConfig, *,
-                      ground_normal: F64 | None = None) -> Refinement:
+                      ground_normal: F64 | None = None,
+                      plane_sigma_deg: float = 0.0) -> Refinement:
     """Final robust refinement of rotation, translation, clock offset and reflection profile.
 
     Parameters
@@ -200,6 +201,10 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
     ground_normal : ndarray of shape (3,), optional
         The road plane's normal in the sensor frame (stage 4): a weak prior on the tilt
         (``_TILT_PRIOR_DEG``) where the vehicle's views leave it undetermined.
+    plane_sigma_deg : float
+        How uncertain stage 4's plane is (``GroundPlane.tilt_sigma_deg``): where the
+        vehicle was seen along one road only, the tilt about it is the plane's, and this
+        joins the covariance (``_plane_swing``).
 
     Returns
     -------
@@ -322,7 +327,28 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
                 'boresight, 1 sigma): cross the view or turn through it to measure it.',
                 *refinement.diagnostics['advice']]
             _LOG.info('%s', refinement.diagnostics['advice'][0])
+        return _plane_swing(refinement, plane_sigma_deg)
+
+
+def _plane_swing(refinement: Refinement, plane_sigma_deg: float) -> Refinement:
+    """The refinement with the road plane's own uncertainty in its covariance, where the
+    vehicle was seen along one road only (``_LINE_SPREAD_M``): a turn about that road
+    through its targets, which moves them by nothing and the radar by its distance from
+    them times the angle, is then decided by the plane (the fit's prior, or held there),
+    and is as uncertain as the plane is."""
+    diagnostics = refinement.diagnostics
+    axis = diagnostics.get('line_axis')
+    offset = diagnostics.get('target_offset_m')
+    if (plane_sigma_deg <= 0.0 or axis is None or offset is None
+            or diagnostics.get('line_spread_m', math.inf) >= _LINE_SPREAD_M):
         return refinement
+    swing = np.concatenate([axis, -np.cross(axis, offset), [0.0]])
+    covariance = refinement.covariance + math.radians(plane_sigma_deg) ** 2 * np.outer(
+        swing, swing)
+    diagnostics = dict(diagnostics)
+    diagnostics.update(uncertainty.sigma_summary(covariance, refinement.extrinsics.rotation))
+    diagnostics['plane_sigma_deg'] = float(plane_sigma_deg)
+    return dataclasses.replace(refinement, covariance=covariance, diagnostics=diagnostics)
 
 
 #: Width of the prior that holds the horizontal position at the paper's estimate where

@@ -258,6 +258,37 @@ def test_road_users_along_one_road_do_not_replace_the_plane() -> None:
     np.testing.assert_array_equal(plane.normal, all_moving.normal)
 
 
+def test_a_plane_kept_over_one_lanes_road_users_is_as_uncertain_as_they_differ() -> None:
+    """One lane driven both ways by the vehicle alone, moving clutter over the whole view
+    on a plane 6 deg off: which plane is the road's the data cannot say, so the one kept
+    carries their difference as its uncertainty, capped (one lane's own plane may turn any
+    way about it); without the clutter they agree and it carries none."""
+    rng = np.random.default_rng(0)
+    points, times, tracks = [], [], []
+    for k in range(6):                  # one lane, both ways, 10 m/s at 15 Hz
+        t = np.arange(0.0, 6.0, 1.0 / 15.0) + 10.0 * k
+        x = 10.0 + 10.0 * (t - t[0]) if k % 2 == 0 else 70.0 - 10.0 * (t - t[0])
+        tt = np.repeat(t, 8)
+        points.append(np.column_stack([np.repeat(x, 8) + rng.uniform(-2.0, 2.0, tt.size),
+                                       rng.uniform(-0.4, 0.4, tt.size),
+                                       rng.uniform(0.0, 1.2, tt.size) - 5.0]))
+        times.append(tt)
+        tracks.append(np.full(tt.size, k))
+    lane = (np.concatenate(points), np.concatenate(times), np.concatenate(tracks))
+    clean, _ = ground_plane.fit_road_plane(*lane, GroundConfig())
+    assert clean.tilt_sigma_deg == 0.0
+    n = 6000
+    clutter = np.column_stack([rng.uniform(10.0, 70.0, n), rng.uniform(-25.0, 25.0, n),
+                               np.zeros(n)])
+    clutter[:, 2] = math.tan(math.radians(6.0)) * clutter[:, 1] - 5.0 + rng.normal(0, 0.1, n)
+    plane, moving_clutter = ground_plane.fit_road_plane(
+        np.vstack([lane[0], clutter]), np.concatenate([lane[1], rng.uniform(0.0, 60.0, n)]),
+        np.concatenate([lane[2], np.full(n, -1)]), GroundConfig())
+    assert moving_clutter is None                    # kept, not replaced
+    assert _angle_deg(plane.normal, np.array([0.0, 0.0, 1.0])) > 5.0
+    assert plane.tilt_sigma_deg == ground_plane._PLANE_SIGMA_MAX_DEG
+
+
 def _pedestrians(seed: int, n: int = 60, beside_m: float = -6.0
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pedestrians walking at 1.4 m/s on a pavement ``beside_m`` to the side of the road of

@@ -2192,3 +2192,28 @@ def test_a_held_clock_offset_moves_the_position_along_the_mean_travel() -> None:
                                                np.tile([0.0, -8.0, 0.0], (30, 1))]),
                                     np.ones(60))
     assert np.allclose(both[3:5, 3:5], 0.0) and both[6, 6] == 1.0
+
+
+def test_the_road_planes_own_uncertainty_joins_the_tilt_about_one_road() -> None:
+    """Seen along one road only, the turn about it through the vehicle's targets is the
+    road plane's: where stage 4 could not tell its planes apart, their difference joins the
+    covariance along that turn (the radar swings with it); across a junction's spread of
+    targets, or with a sure plane, nothing changes."""
+    from radar_calib_ros.types import Refinement
+    axis, offset = np.array([1.0, 0.0, 0.0]), np.array([30.0, 6.0, -5.0])
+    fit = Refinement(Extrinsics(np.eye(3), np.zeros(3), 0.0), np.diag([1e-6] * 6 + [1e-4]),
+                     4000, 4, diagnostics={'line_axis': axis, 'target_offset_m': offset,
+                                           'line_spread_m': 0.7, 'advice': []})
+    swung = refine._plane_swing(fit, 8.0)
+    roll = math.radians(8.0)
+    assert math.sqrt(swung.covariance[0, 0]) == pytest.approx(roll, rel=1e-3)
+    # the radar turns about the road through the targets: it moves by their offset times
+    # the angle, up and sideways
+    assert math.sqrt(swung.covariance[5, 5]) == pytest.approx(6.0 * roll, rel=1e-3)
+    assert math.sqrt(swung.covariance[4, 4]) == pytest.approx(5.0 * roll, rel=1e-3)
+    assert swung.diagnostics['sigma_vertical_m'] > 0.8 and swung.diagnostics[
+        'plane_sigma_deg'] == 8.0
+    assert fit.diagnostics.get('plane_sigma_deg') is None           # a copy, not changed
+    assert refine._plane_swing(fit, 0.0) is fit
+    wide = dataclasses.replace(fit, diagnostics={**fit.diagnostics, 'line_spread_m': 12.0})
+    assert refine._plane_swing(wide, 8.0) is wide
