@@ -360,7 +360,8 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         return dataclasses.replace(ground, tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)
                                    ), None
     used = np.flatnonzero(road_users)[roads.used]
-    return (dataclasses.replace(roads, used=used.astype(np.int64)),
+    return (dataclasses.replace(roads, used=used.astype(np.int64),
+                                tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)),
             MovingClutter(float(1.0 - road_users.mean()), tilt))
 
 

@@ -78,6 +78,7 @@ candidates in ``refine_diagnostics.py``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -228,13 +229,16 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
     # slower with 2 cores shared). One thread is as fast when idle and far faster when not.
     if not recording.has_elevation:
         initial = _with_mount_tilt(initial, config)
+    # every fit knows how sure stage 4's plane is (where it is no surer than the fit, the
+    # tilt is not held at it: see ``_refine_checked``)
+    _checked = functools.partial(_refine_checked, plane_sigma_deg=plane_sigma_deg)
     with threadpool_limits(limits=1, user_api='blas'):
         tracked = with_static_targets(initial, recording, tracked, config)
         start_sigma = _START_SIGMA_M
         held_note: _Diverged | None = None
         try:
-            refinement = _refine_checked(initial, recording, tracked, selection, config,
-                                         ground_normal, None)
+            refinement = _checked(initial, recording, tracked, selection, config,
+                                  ground_normal, None)
         except _Diverged as err:
             # Every drive runs towards or away from the radar: the position along the
             # boresight is a flat valley that the reflection depth trades along, and the
@@ -246,8 +250,8 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
                 raise
             start_sigma = _HELD_START_SIGMA_M
             try:
-                refinement = _refine_checked(initial, recording, tracked, selection, config,
-                                             ground_normal, None, start_sigma)
+                refinement = _checked(initial, recording, tracked, selection, config,
+                                      ground_normal, None, start_sigma)
             except InsufficientDataError:
                 raise err from None
             held_note = err
@@ -258,8 +262,8 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
         rescan = _rescan_along_boresight(refinement, recording, tracked, config)
         if rescan is not None:
             try:
-                other = _refine_checked(rescan, recording, tracked, selection, config,
-                                        ground_normal, None)
+                other = _checked(rescan, recording, tracked, selection, config,
+                                 ground_normal, None)
             except InsufficientDataError:
                 other = None
             if other is not None and _rescan_better(other, refinement):
@@ -283,7 +287,7 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
         # from the fitted one starts a second fit from there, and the fit that explains its
         # targets better (lower robust cost per target, not fewer of them) is kept.
         initial, refinement = _clock_restarted(
-            initial, refinement, lambda started: _refine_checked(
+            initial, refinement, lambda started: _checked(
                 started, recording, tracked, selection, config, ground_normal, None,
                 start_sigma, scan_clock=False))
         # Where the offsets the passes show change steadily with time, the fit is run again
@@ -310,8 +314,8 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
                 break
             drift = more if drift is None else drift.plus(more)
             try:
-                refinement = _refine_checked(initial, recording, tracked, selection, config,
-                                             ground_normal, drift, start_sigma)
+                refinement = _checked(initial, recording, tracked, selection, config,
+                                      ground_normal, drift, start_sigma)
             except InsufficientDataError:
                 break
             _LOG.info('radar clock drift %.0f +- %.0f ppm, step %.0f ms: refitted',
@@ -549,8 +553,8 @@ def _clock_restarted(initial: Extrinsics, refinement: Refinement,
 def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
                     selection: HypothesisSelection, config: CalibConfig,
                     ground_normal: F64 | None, drift: ClockDrift | None,
-                    start_sigma_m: float = _START_SIGMA_M, scan_clock: bool = True
-                    ) -> Refinement:
+                    start_sigma_m: float = _START_SIGMA_M, scan_clock: bool = True,
+                    plane_sigma_deg: float = 0.0) -> Refinement:
     """``_refine`` with the model check and a 2-D radar's tilt probes (below)."""
     alternative = None
     if config.refine.model_check:
@@ -600,7 +604,11 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
                          start_sigma_m=start_sigma_m, scan_clock=scan_clock)
     moved = refinement.diagnostics.get('tilt_from_plane_deg', 0.0)
     spread = refinement.diagnostics.get('line_spread_m', math.inf)
-    if moved <= _TILT_MOVED_DEG or spread >= _LINE_SPREAD_M:
+    if moved <= _TILT_MOVED_DEG or spread >= _LINE_SPREAD_M or moved <= 2.0 * plane_sigma_deg:
+        # (nor where the fit lies within two sigma of stage 4's plane as stage 4 knows it:
+        # two planes it could not tell apart, that far apart. A sixty-fourth probe's slow car
+        # park: the road users' plane, taken over a clutter-tilted one 5.8 deg from it, held
+        # the tilt 4.4 deg off in pitch, 2.2 m in height; the free fit was 0.18 deg off)
         return refinement
     # Every target lies along one road (one lane of a one-way street; a narrow beam
     # across a road far away): a tilt about that road, with the altitude, moves them by

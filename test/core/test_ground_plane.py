@@ -231,6 +231,8 @@ def test_rain_near_the_radar_does_not_tilt_the_road_plane() -> None:
     plane, clutter = ground_plane.fit_road_plane(points, times, tracks, GroundConfig())
     assert clutter is not None and clutter.tilt_deg > 2.0 and 0.5 < clutter.share < 0.9
     assert _angle_deg(plane.normal, up) < 0.2 and plane.normal @ up > 0.0
+    # chosen over another as far off: as uncertain as that, for a fit along one road
+    assert plane.tilt_sigma_deg == pytest.approx(min(clutter.tilt_deg, 10.0))
     assert (tracks[plane.used] < 1000).all()        # indices into the given targets
     dry = tracks < 1000
     plane, clutter = ground_plane.fit_road_plane(points[dry], times[dry], tracks[dry],
