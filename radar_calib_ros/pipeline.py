@@ -707,6 +707,17 @@ def _short_drive_note(recording: Recording, config: CalibConfig) -> str | None:
     if moving_s >= _SHORT_DRIVE_S:
         return None
     driven = float((speed[1:] * dt)[moving].sum())
+    crept = float((speed[1:] * dt)[~moving].sum())
+    if crept >= _CREPT_M and crept >= driven:
+        # it did drive, below the speed its targets are tracked at: 'hardly moved' or
+        # 'record a longer drive' sent a sixty-fourth probe's queue (207 m driven, 27 m of
+        # it at 1 m/s or more) and car-park crawl (157 m) off to the wrong remedy
+        return (f'The calibration vehicle crept {crept:.0f} m below '
+                f'{hypotheses.TRACKABLE_SPEED_MPS:g} m/s while the radar recorded, and drove '
+                f'only {driven:.0f} m faster: its targets are tracked from that speed on. '
+                f'Drive it through the view at {2 * hypotheses.TRACKABLE_SPEED_MPS:g} m/s or '
+                f'more, at least {config.hypotheses.min_passes} times, on different lanes and '
+                'in both directions.')
     if moving_s < 1.0:
         return (f'The calibration vehicle hardly moved while the radar recorded ({driven:.0f} m'
                 f' at 1 m/s or more in {t[-1] - t[0]:.0f} s): drive it through the view, at '
@@ -715,6 +726,10 @@ def _short_drive_note(recording: Recording, config: CalibConfig) -> str | None:
     return (f'The calibration vehicle drove only {driven:.0f} m in {moving_s:.0f} s while the '
             f'radar recorded: {config.hypotheses.min_passes} passes through the view take '
             'more; record a longer drive.')
+
+
+#: Distance crept below the tracked speed that the short-drive note names instead [m].
+_CREPT_M = 20.0
 
 
 #: Radar frames outside the pose stream worth a note (share), and a jump of the radar's
