@@ -256,9 +256,11 @@ _MIN_ROAD_USER_TARGETS = 500
 #: their plane to replace that of all moving targets: a plane along one road turns about
 #: it by a lane-to-lane height difference of 0.3 m over 6 m by 3 deg, past the 1.5 above.
 _ROAD_PLANE_MIN_WIDTH_M = 6.0
-#: Largest uncertainty given the plane where the two could not be told apart [deg]: the
-#: plane of targets along one lane is undetermined about it (80 deg from the other seen).
+#: Largest uncertainty given the plane where the two could not be told apart [deg], and
+#: the one given where the road users keep to one lane (across it, 1 sigma [m]): the plane
+#: of targets along one lane is undetermined about it (80 deg from the other seen).
 _PLANE_SIGMA_MAX_DEG = 10.0
+_ONE_LANE_WIDTH_M = 1.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -340,10 +342,18 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
     tilt = math.degrees(math.acos(min(1.0, abs(float(ground.normal @ roads.normal)))))
     _LOG.debug('ground plane of all moving targets and of the road users\' tracks: %.3f deg '
                'apart', tilt)
-    if tilt <= _CLUTTER_PLANE_DEG:
-        return ground, None
     centred = points_m[road_users] - points_m[road_users].mean(axis=0)
     width = _width(centred @ _plane_basis(roads.normal)[:, :2])
+    if width < _ONE_LANE_WIDTH_M:
+        # Road users in one lane only (the vehicle alone on a one-way street): nothing
+        # moving shows the turn about that lane, whichever plane is kept, and with no other
+        # traffic the moving targets beside it are clutter (a sixty-fifth probe's one-lane
+        # road: the planes 2.1 deg apart, the tilt 7.4 deg off at a reported 2.2).
+        _LOG.info('the road users\' tracks lie in one lane (%.1f m across): the road plane '
+                  'is uncertain about it by up to %.0f deg', width, _PLANE_SIGMA_MAX_DEG)
+        return dataclasses.replace(ground, tilt_sigma_deg=_PLANE_SIGMA_MAX_DEG), None
+    if tilt <= _CLUTTER_PLANE_DEG:
+        return ground, None
     if width < _ROAD_PLANE_MIN_WIDTH_M:
         # Road users along one road only (the calibration vehicle alone, driving it both
         # ways): their plane turns about the road by the height difference of the cars'

@@ -260,35 +260,56 @@ def test_road_users_along_one_road_do_not_replace_the_plane() -> None:
     np.testing.assert_array_equal(plane.normal, all_moving.normal)
 
 
-def test_a_plane_kept_over_one_lanes_road_users_is_as_uncertain_as_they_differ() -> None:
-    """One lane driven both ways by the vehicle alone, moving clutter over the whole view
-    on a plane 6 deg off: which plane is the road's the data cannot say, so the one kept
-    carries their difference as its uncertainty, capped (one lane's own plane may turn any
-    way about it); without the clutter they agree and it carries none."""
+def _lanes_with_clutter(lanes_m: tuple[float, ...], clutter_deg: float | None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vehicle alone driving lanes at these offsets across the road (x along it), each
+    way in turn at 10 m/s, 15 Hz, 8 targets a frame inside its footprint; plus, where given,
+    6000 untracked moving targets over the view on a plane ``clutter_deg`` off about x."""
     rng = np.random.default_rng(0)
     points, times, tracks = [], [], []
-    for k in range(6):                  # one lane, both ways, 10 m/s at 15 Hz
+    for k in range(6):
         t = np.arange(0.0, 6.0, 1.0 / 15.0) + 10.0 * k
         x = 10.0 + 10.0 * (t - t[0]) if k % 2 == 0 else 70.0 - 10.0 * (t - t[0])
         tt = np.repeat(t, 8)
         points.append(np.column_stack([np.repeat(x, 8) + rng.uniform(-2.0, 2.0, tt.size),
-                                       rng.uniform(-0.4, 0.4, tt.size),
+                                       lanes_m[k % len(lanes_m)]
+                                       + rng.uniform(-0.4, 0.4, tt.size),
                                        rng.uniform(0.0, 1.2, tt.size) - 5.0]))
         times.append(tt)
         tracks.append(np.full(tt.size, k))
-    lane = (np.concatenate(points), np.concatenate(times), np.concatenate(tracks))
-    clean, _ = ground_plane.fit_road_plane(*lane, GroundConfig())
+    if clutter_deg is not None:
+        n = 6000
+        clutter = np.column_stack([rng.uniform(10.0, 70.0, n), rng.uniform(-25.0, 25.0, n),
+                                   np.zeros(n)])
+        clutter[:, 2] = (math.tan(math.radians(clutter_deg)) * clutter[:, 1] - 5.0
+                         + rng.normal(0, 0.1, n))
+        points.append(clutter)
+        times.append(rng.uniform(0.0, 60.0, n))
+        tracks.append(np.full(n, -1))
+    return np.concatenate(points), np.concatenate(times), np.concatenate(tracks)
+
+
+def test_a_road_plane_the_road_users_cannot_show_carries_an_uncertainty() -> None:
+    """Road users in one lane only (the vehicle alone on a one-way street): nothing moving
+    shows the turn about that lane, so the plane kept carries the largest uncertainty, clutter
+    or none. Three lanes with moving clutter on a plane 6 deg off: the two planes stage 4
+    cannot tell apart carry their difference; without the clutter they agree and the plane
+    carries none."""
+    cap = ground_plane._PLANE_SIGMA_MAX_DEG
+    for clutter_deg in (None, 6.0):
+        plane, moving_clutter = ground_plane.fit_road_plane(
+            *_lanes_with_clutter((0.0,), clutter_deg), GroundConfig())
+        assert moving_clutter is None and plane.tilt_sigma_deg == cap
+    lanes = (-3.5, 0.0, 3.5)
+    clean, _ = ground_plane.fit_road_plane(*_lanes_with_clutter(lanes, None), GroundConfig())
     assert clean.tilt_sigma_deg == 0.0
-    n = 6000
-    clutter = np.column_stack([rng.uniform(10.0, 70.0, n), rng.uniform(-25.0, 25.0, n),
-                               np.zeros(n)])
-    clutter[:, 2] = math.tan(math.radians(6.0)) * clutter[:, 1] - 5.0 + rng.normal(0, 0.1, n)
-    plane, moving_clutter = ground_plane.fit_road_plane(
-        np.vstack([lane[0], clutter]), np.concatenate([lane[1], rng.uniform(0.0, 60.0, n)]),
-        np.concatenate([lane[2], np.full(n, -1)]), GroundConfig())
+    points, times, tracks = _lanes_with_clutter(lanes, 6.0)
+    plane, moving_clutter = ground_plane.fit_road_plane(points, times, tracks, GroundConfig())
     assert moving_clutter is None                    # kept, not replaced
-    assert _angle_deg(plane.normal, np.array([0.0, 0.0, 1.0])) > 5.0
-    assert plane.tilt_sigma_deg == ground_plane._PLANE_SIGMA_MAX_DEG
+    roads = fit_ground_plane(points[tracks >= 0], GroundConfig())
+    assert plane.tilt_sigma_deg == pytest.approx(_angle_deg(plane.normal, roads.normal),
+                                                 abs=1e-6)
+    assert 1.5 < plane.tilt_sigma_deg < cap
 
 
 def _pedestrians(seed: int, n: int = 60, beside_m: float = -6.0
