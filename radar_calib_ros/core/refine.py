@@ -67,8 +67,8 @@ The uncertainty comes from agreement across passes and across range bands
 
 This module holds the stage: the gate rounds, the model check and a 2-D radar's tilt
 probes, the rescan along the boresight, the clock offset's second start and the clock
-refits around them. Its parts live
-next to it: the poses at float times, the model, the solver and the priors in
+refits around them, and the road plane's own uncertainty. Its parts live next to it: the
+poses at float times, the model, the solver and the priors in
 ``refine_model.py``; which targets a fit takes and how much each counts in
 ``refine_targets.py``; the noise the residuals show in ``refine_noise.py``; the clock
 offset's start, drift and steps in ``refine_clock.py``; the divergence checks and the
