@@ -230,6 +230,21 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
                - recording.frame_stamps_ns[0]) * 1e-9
     ground, clutter = ground_plane.fit_road_plane(positions[tracked.target_index], frame_s,
                                                   tracked.track_id, config.ground)
+    if _plane_tilt_from_sensor_deg(ground) > _MAX_PLANE_TILT_DEG and recording.has_elevation:
+        # The moving targets all lie near one line (the vehicle alone along one road): any
+        # plane through that line fits them, and the one found turned the radar on its side
+        # (a sixty-sixth probe: 16 of 53 thin drives rolled 31-93 deg and 2-13 m off, exit
+        # 0). No roadside radar is mounted so: the plane of all targets (the road's own
+        # returns and low clutter among them) is taken where it is upright enough.
+        every = ground_plane.fit_ground_plane(positions, config.ground)
+        moving_deg, every_deg = (_plane_tilt_from_sensor_deg(g) for g in (ground, every))
+        if every_deg <= _MAX_PLANE_TILT_DEG:
+            note = (f'The moving targets put the road plane {moving_deg:.0f} deg from the '
+                    'radar\'s up (they lie along one line: a plane turns freely about it); '
+                    f'the plane of all targets, {every_deg:.0f} deg from it, was fitted '
+                    'instead.')
+            _LOG.warning('%s', note)
+            return every, note
     if clutter is None:
         return ground, None
     # 'over 99 %', not '100 %', where the road users' targets are a sliver (a probe read
@@ -250,6 +265,16 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
             'users\' tracks alone.')
     _LOG.warning('%s', note)
     return ground, note
+
+
+#: Largest angle between the road plane's normal and the radar's z axis believed [deg]: a
+#: roadside radar looks down at the road by up to a few tens of degrees, never from its side.
+_MAX_PLANE_TILT_DEG = 60.0
+
+
+def _plane_tilt_from_sensor_deg(ground: GroundPlane) -> float:
+    """Angle between a road plane's normal (sensor frame, up) and the sensor's z axis."""
+    return math.degrees(math.acos(min(1.0, abs(float(ground.normal[2])))))
 
 
 #: Step of the clock offsets tried when the hypotheses do not agree at the given one [s].

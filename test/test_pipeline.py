@@ -1313,17 +1313,47 @@ def test_the_moving_clutter_note_says_whether_road_users_gave_few_targets(
     from radar_calib_ros.core import ground_plane
 
     frames, total = 100, int(per_frame * 100)
+    upright = SimpleNamespace(normal=np.array([0.0, 0.1, 1.0]) / math.hypot(0.1, 1.0))
     monkeypatch.setattr(ground_plane, 'fit_road_plane', lambda *a: (
-        'plane', ground_plane.MovingClutter(share, 6.0)))
+        upright, ground_plane.MovingClutter(share, 6.0)))
     recording = SimpleNamespace(
         targets=SimpleNamespace(positions_m=np.zeros((total, 3)),
                                 frame_index=np.arange(total) * frames // total),
-        frame_stamps_ns=np.arange(frames, dtype=np.int64) * 50_000_000)
+        frame_stamps_ns=np.arange(frames, dtype=np.int64) * 50_000_000, has_elevation=True)
     tracked = SimpleNamespace(target_index=np.arange(total), track_id=np.zeros(total, int))
     plane, note = pipeline._ground_plane(recording, tracked, CalibConfig())  # type: ignore
-    assert plane == 'plane' and note is not None and cause in note
+    assert plane is upright and note is not None and cause in note
     assert (f'{share * per_frame:.1f} a frame against {(1 - share) * per_frame:.1f} on road '
             'users\' tracks') in note
+
+
+@pytest.mark.parametrize('all_targets_deg, taken', [(12.0, True), (75.0, False)])
+def test_a_road_plane_that_turns_the_radar_on_its_side_is_fitted_to_all_targets(
+        monkeypatch: pytest.MonkeyPatch, all_targets_deg: float, taken: bool) -> None:
+    """The vehicle alone along one road: its moving targets lie near one line, any plane
+    through it fits them, and a sixty-sixth probe's radars came out rolled 31-93 deg, 2-13 m
+    off, exit 0. A plane more than 60 deg from the radar's up (no roadside mount) gives way
+    to the plane of all targets where that one is upright enough, and it is said."""
+    from types import SimpleNamespace
+
+    from radar_calib_ros.core import ground_plane
+
+    def plane(deg: float) -> Any:
+        return SimpleNamespace(normal=np.array([0.0, math.sin(math.radians(deg)),
+                                                math.cos(math.radians(deg))]))
+    on_its_side, every = plane(88.0), plane(all_targets_deg)
+    monkeypatch.setattr(ground_plane, 'fit_road_plane', lambda *a: (on_its_side, None))
+    monkeypatch.setattr(ground_plane, 'fit_ground_plane', lambda *a: every)
+    recording = SimpleNamespace(
+        targets=SimpleNamespace(positions_m=np.zeros((50, 3)), frame_index=np.arange(50)),
+        frame_stamps_ns=np.arange(50, dtype=np.int64) * 50_000_000, has_elevation=True)
+    tracked = SimpleNamespace(target_index=np.arange(50), track_id=np.zeros(50, int))
+    chosen, note = pipeline._ground_plane(recording, tracked, CalibConfig())  # type: ignore
+    if taken:
+        assert chosen is every and note is not None
+        assert 'road plane 88 deg from the radar' in note and '12 deg from it' in note
+    else:
+        assert chosen is on_its_side and note is None
 
 
 def test_an_imaging_radars_many_targets_are_named_with_the_setting_that_thins_them() -> None:
