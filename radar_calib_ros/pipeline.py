@@ -268,8 +268,10 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
 
 
 #: Largest angle between the road plane's normal and the radar's z axis believed [deg]: a
-#: roadside radar looks down at the road by up to a few tens of degrees, never from its side.
-_MAX_PLANE_TILT_DEG = 60.0
+#: roadside radar looks down at the road by 3-25 deg, rolled by a few, never from its side
+#: (a sixty-sixth probe's one-road planes were 31-93 deg off; a radar truly pitched further
+#: keeps its plane, as the plane of all its targets is then no more upright).
+_MAX_PLANE_TILT_DEG = 30.0
 
 
 def _plane_tilt_from_sensor_deg(ground: GroundPlane) -> float:

@@ -1327,12 +1327,12 @@ def test_the_moving_clutter_note_says_whether_road_users_gave_few_targets(
             'users\' tracks') in note
 
 
-@pytest.mark.parametrize('all_targets_deg, taken', [(12.0, True), (75.0, False)])
+@pytest.mark.parametrize('all_targets_deg, taken', [(12.0, True), (35.0, False)])
 def test_a_road_plane_that_turns_the_radar_on_its_side_is_fitted_to_all_targets(
         monkeypatch: pytest.MonkeyPatch, all_targets_deg: float, taken: bool) -> None:
     """The vehicle alone along one road: its moving targets lie near one line, any plane
     through it fits them, and a sixty-sixth probe's radars came out rolled 31-93 deg, 2-13 m
-    off, exit 0. A plane more than 60 deg from the radar's up (no roadside mount) gives way
+    off, exit 0. A plane more than 30 deg from the radar's up (no roadside mount) gives way
     to the plane of all targets where that one is upright enough, and it is said."""
     from types import SimpleNamespace
 
