@@ -230,14 +230,15 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
                - recording.frame_stamps_ns[0]) * 1e-9
     ground, clutter = ground_plane.fit_road_plane(positions[tracked.target_index], frame_s,
                                                   tracked.track_id, config.ground)
-    if _plane_tilt_from_sensor_deg(ground) > _MAX_PLANE_TILT_DEG and recording.has_elevation:
+    level = np.eye(3)      # the tilt from the radar's own up: under no rotation
+    if _plane_tilt_deg(ground.normal, level) > _MAX_PLANE_TILT_DEG and recording.has_elevation:
         # The moving targets all lie near one line (the vehicle alone along one road): any
         # plane through that line fits them, and the one found turned the radar on its side
         # (a sixty-sixth probe: 16 of 53 thin drives rolled 31-93 deg and 2-13 m off, exit
         # 0). No roadside radar is mounted so: the plane of all targets (the road's own
         # returns and low clutter among them) is taken where it is upright enough.
         every = ground_plane.fit_ground_plane(positions, config.ground)
-        moving_deg, every_deg = (_plane_tilt_from_sensor_deg(g) for g in (ground, every))
+        moving_deg, every_deg = (_plane_tilt_deg(g.normal, level) for g in (ground, every))
         if every_deg <= _MAX_PLANE_TILT_DEG:
             note = (f'The moving targets put the road plane {moving_deg:.0f} deg from the '
                     'radar\'s up (they lie along one line: a plane turns freely about it); '
@@ -272,11 +273,6 @@ def _ground_plane(recording: Recording, tracked: TrackedTargets,
 #: (a sixty-sixth probe's one-road planes were 31-93 deg off; a radar truly pitched further
 #: keeps its plane, as the plane of all its targets is then no more upright).
 _MAX_PLANE_TILT_DEG = 30.0
-
-
-def _plane_tilt_from_sensor_deg(ground: GroundPlane) -> float:
-    """Angle between a road plane's normal (sensor frame, up) and the sensor's z axis."""
-    return math.degrees(math.acos(min(1.0, abs(float(ground.normal[2])))))
 
 
 #: Step of the clock offsets tried when the hypotheses do not agree at the given one [s].

@@ -364,9 +364,9 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         _LOG.info('the road users\' tracks lie along one road (%.1f m across): the plane of '
                   'all moving targets is kept, %.1f deg from theirs', width, tilt)
         # which of the two is the road's the data cannot say (with no other traffic the
-        # first is clutter's: a sixty-fifth probe's one-lane road, 8.9 deg apart, the tilt
-        # held 15 deg off at a reported 0.6): the difference is the plane's uncertainty,
-        # up to a cap (one lane's plane may turn any way about it)
+        # first is clutter's: a sixty-fifth probe's one-lane road, 8.9 deg apart, had the
+        # tilt held 15 deg off at a reported 0.6 before one lane was taken above): the
+        # difference is the plane's uncertainty, capped as there
         return dataclasses.replace(ground, tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)
                                    ), None
     used = np.flatnonzero(road_users)[roads.used]

@@ -48,19 +48,27 @@ def _time_offset_scores(est: Extrinsics, candidates: I64, times: _Times,
     return grid, scores
 
 
+def _scan_peak(est: Extrinsics, candidates: I64, times: _Times, recording: Recording,
+               poses: _Poses, config: CalibConfig) -> tuple[F64, int] | None:
+    """The scanned offsets and the index of the best, None where nothing was scanned or
+    the score is flat (no better than at ``est``'s own offset)."""
+    if config.sync.max_time_offset <= 0.0 or candidates.size == 0:
+        return None
+    grid, scores = _time_offset_scores(est, candidates, times, recording, poses, config)
+    best = int(np.argmax(scores))
+    if scores[best] <= 1.001 * scores[int(np.argmin(np.abs(grid - est.time_offset_s)))]:
+        return None
+    return grid, best
+
+
 def _scan_time_offset(est: Extrinsics, candidates: I64, times: _Times, recording: Recording,
                       poses: _Poses, config: CalibConfig) -> float:
     """Coarse start for the clock offset: the offset that puts the most moving targets near
     the box (soft count). The fit itself refines it; the scan only keeps a large offset
-    (vehicle displaced by metres) from starving the gate."""
-    if config.sync.max_time_offset <= 0.0 or candidates.size == 0:
-        return est.time_offset_s
-    grid, scores = _time_offset_scores(est, candidates, times, recording, poses, config)
-    best = float(grid[int(np.argmax(scores))])
-    # A flat score (no information) keeps the given offset.
-    if scores.max() <= 1.001 * scores[int(np.argmin(np.abs(grid - est.time_offset_s)))]:
-        return est.time_offset_s
-    return best
+    (vehicle displaced by metres) from starving the gate. A flat score keeps the given
+    offset."""
+    peak = _scan_peak(est, candidates, times, recording, poses, config)
+    return est.time_offset_s if peak is None else float(peak[0][peak[1]])
 
 
 def _rescan_time_offset(est: Extrinsics, candidates: I64, times: _Times,
@@ -68,14 +76,10 @@ def _rescan_time_offset(est: Extrinsics, candidates: I64, times: _Times,
                         ) -> float | None:
     """The scan's offset at a fitted rotation and position (``refine._clock_restarted``);
     None where it is no peak: a flat score, or the end of the scanned range."""
-    if config.sync.max_time_offset <= 0.0 or candidates.size == 0:
+    peak = _scan_peak(est, candidates, times, recording, poses, config)
+    if peak is None or peak[1] in (0, peak[0].size - 1):
         return None
-    grid, scores = _time_offset_scores(est, candidates, times, recording, poses, config)
-    best = int(np.argmax(scores))
-    if best in (0, grid.size - 1) or scores[best] <= 1.001 * scores[
-            int(np.argmin(np.abs(grid - est.time_offset_s)))]:
-        return None
-    return float(grid[best])
+    return float(peak[0][peak[1]])
 
 
 # --- clock drift and steps --------------------------------------------------------------
