@@ -375,6 +375,35 @@ def count_passes(tracks: Sequence[SmoothedTrack], sensor_xy_m: F64, vehicle: Veh
     return merge_intervals_ns(intervals, config.hypotheses.pass_gap_s, away, vehicle)
 
 
+#: Heading sectors (of ``HEADING_SECTORS`` round the compass) the vehicle must have driven
+#: in within the tracks of a group for it to count as seen in ``min_passes`` passes
+#: (``headings_seen``). Why: a car looping inside the view (a car park, a block, a
+#: roundabout) never leaves it, so its loops are one pass however many, and a sixty-sixth
+#: probe's loops were refused 7 of 7 although with min_passes 1 they calibrated to 2-9 cm.
+#: Agreement across passes is asked because one straight pass of another road user fits a
+#: stretch of the vehicle's drive; no other road user's track fits the vehicle's poses
+#: through a full turn unless it drove the same circle in step with it (a follower on a
+#: roundabout, a rotation about its centre and a clock offset of the lag: accepted as a
+#: rare risk). Ten of twelve leaves the loop a gap of 60 deg for a track broken where the
+#: vehicle passed behind something.
+HEADING_SECTORS = 12
+LOOP_SECTORS = 10
+
+
+def headings_seen(tracks: Sequence[SmoothedTrack], vehicle: VehicleTrack,
+                  time_offset_s: float) -> int:
+    """In how many of ``HEADING_SECTORS`` equal sectors of the compass the vehicle was
+    heading at the stamps of ``tracks`` (its yaw interpolated to them)."""
+    if not tracks or len(vehicle) < 2:
+        return 0
+    stamps = pose_stamps_ns(np.concatenate([t.stamps_ns for t in tracks]), time_offset_s)
+    t = (vehicle.stamps_ns - vehicle.stamps_ns[0]).astype(np.float64)
+    yaw = np.interp((stamps - vehicle.stamps_ns[0]).astype(np.float64), t,
+                    np.unwrap(vehicle.yaw_rad))
+    sector = np.floor(np.mod(yaw, 2.0 * np.pi) / (2.0 * np.pi / HEADING_SECTORS))
+    return int(np.unique(np.clip(sector, 0, HEADING_SECTORS - 1)).size)
+
+
 def _path_length_m(positions_m: F64) -> float:
     if positions_m.shape[0] < 2:
         return 0.0
@@ -399,10 +428,15 @@ class _Cluster:
     mean_angle_deg: float
     fit: registration.RigidFit | None
     n_correspondences: int
+    headings_seen: int = 0
 
     @property
     def n_passes(self) -> int:
         return int(self.passes.shape[0])
+
+    def enough_passes(self, min_passes: int) -> bool:
+        """Seen in ``min_passes`` passes, or heading every way (``LOOP_SECTORS``)."""
+        return self.n_passes >= min_passes or self.headings_seen >= LOOP_SECTORS
 
 
 #: Another agreeing group (eligible as the accepted one is) rivals it when it is seen in at
@@ -531,7 +565,8 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
 
     A core is eligible when its tracks span at least ``min_passes`` distinct passes
     (fragments of one pass of another car agree perfectly with each other, so agreement
-    only counts across passes). Among eligible cores the lowest mean pairwise rotation
+    only counts across passes), or saw the vehicle heading every way (a loop inside the
+    view, ``LOOP_SECTORS``). Among eligible cores the lowest mean pairwise rotation
     angle wins (the paper's rule); cores within ``angle_tie_deg`` of it tie, and the tie
     goes to the core seen in more passes (the vehicle is seen on every pass, a decoy only
     by coincidence), then to the lower merged RMS (the vehicle's timing matches its own
@@ -590,7 +625,7 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
                            variants, recording, config)
                 for label in np.unique(labels[labels >= 0])]
     mean_angles = {c.label: c.member_angle_deg for c in clusters}
-    eligible = [c for c in clusters if c.fit is not None and c.n_passes >= cfg.min_passes
+    eligible = [c for c in clusters if c.fit is not None and c.enough_passes(cfg.min_passes)
                 and c.mean_angle_deg <= cfg.max_mean_angle_deg]
     if not eligible:
         raise InsufficientDataError(_STAGE, _no_cluster_reason(
@@ -852,7 +887,9 @@ def _cluster_core(label: int, members: I64, hyps: Sequence[Hypothesis],
                     float(angles[np.triu_indices(members.size, k=1)].mean())
                     if members.size > 1 else 0.0, core, passes,
                     _mean_pairwise_angle_deg(np.array([hyps[i].rotation for i in core]))
-                    if core.size else float('inf'), fit, n_corr)
+                    if core.size else float('inf'), fit, n_corr,
+                    headings_seen([hyp_tracks[i] for i in core], recording.vehicle,
+                                  config.sync.time_offset) if fit is not None else 0)
 
 
 def turn_words(yaw_deg: float, tilt_deg: float) -> str:
@@ -936,7 +973,9 @@ def _no_cluster_reason(clusters: Sequence[_Cluster], hyps: Sequence[Hypothesis],
         return (f'no consistent calibration-vehicle track: none of the {n_hyps} hypotheses '
                 f'(from up to {_n_passes(all_passes)}) agrees with one from another pass (a '
                 f'single pass fits any road user\'s track); need {cfg.min_passes} agreeing '
-                'passes')
+                'passes, or one drive tracked heading every way (a loop inside the view, '
+                f'tracked in {widest.headings_seen} of {HEADING_SECTORS} '
+                f'{360 // HEADING_SECTORS}-deg sectors, need {LOOP_SECTORS})')
     in_view, followed = views[widest.label]
     return (f'no consistent calibration-vehicle track: {n_hyps} chance hypotheses from other '
             f'road users, none agreeing across {cfg.min_passes} passes (the best group, '

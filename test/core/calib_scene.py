@@ -65,6 +65,16 @@ def _lane_path(lane: int, tau: np.ndarray, truth: Extrinsics) -> tuple[np.ndarra
     return xy_l @ rz.T + truth.translation_m[:2], np.radians(heading + YAW0_DEG)
 
 
+def _loop_path(radius_m: float, tau: np.ndarray, truth: Extrinsics
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """World xy and heading after tau s round a circle 35 m ahead of the sensor."""
+    s = 6.0 * tau + 0.5 * 1.0 * tau ** 2
+    phi = s / radius_m - 0.5 * np.pi
+    xy_l = np.column_stack([35.0 + radius_m * np.cos(phi), radius_m * np.sin(phi)])
+    rz = _rz(YAW0_DEG)[:2, :2]
+    return xy_l @ rz.T + truth.translation_m[:2], phi + 0.5 * np.pi + np.radians(YAW0_DEG)
+
+
 def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int = 0,
                target_noise_m: float = 0.0, interior_targets: int = 5,
                split_pass: int | None = None, random_cars: int = 0,
@@ -72,6 +82,7 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
                stop_pass: int | None = None, stop_s: float = 12.0,
                escort_m: float | None = None, beside_m: float | None = None,
                hidden_pass: int | None = None, radial_velocities: bool = False,
+               loop_radius_m: float | None = None,
                config: CalibConfig | None = None) -> Scene:
     """Build a scene.
 
@@ -86,7 +97,8 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
     track and eight targets a frame over its footprint; hidden_pass: on that pass the
     vehicle gives no track and no target (hidden by the truck); radial_velocities: the
     targets' radial velocities are those of the vehicle's motion (the truck's alike),
-    else 5 m/s each.
+    else 5 m/s each; loop_radius_m: every pass drives anticlockwise round a circle of this
+    radius 35 m ahead of the radar instead of along its lane (8 m: once round and a bit).
     """
     rng = np.random.default_rng(seed)
     config = config or CalibConfig()
@@ -104,7 +116,8 @@ def make_scene(*, n_passes: int = 5, lanes: list[int] | None = None, seed: int =
     for k, ((start, end), lane) in enumerate(zip(windows, lanes)):
         m = (t_pose >= start) & (t_pose <= end)
         tau = _path_time(t_pose[m] - start, stop_s if k == stop_pass else 0.0)
-        xy[m], heading = _lane_path(lane, tau, truth)
+        xy[m], heading = (_lane_path(lane, tau, truth) if loop_radius_m is None
+                          else _loop_path(loop_radius_m, tau, truth))
         yaw[m] = heading
         speed = np.where(np.diff(tau, append=np.inf) > 0, 6.0 + tau, 0.0)
         vel[m, 0], vel[m, 1] = speed * np.cos(heading), speed * np.sin(heading)

@@ -524,3 +524,22 @@ def test_hypotheses_of_one_pass_say_how_many_passes_there_were() -> None:
         hypotheses.prune_hypotheses(hyps, scene.tracks, scene.recording, scene.ground,
                                     scene.config)
     assert 'none of the 2 hypotheses (from up to 1 pass)' in str(err.value)
+
+
+def test_a_loop_inside_the_view_counts_as_enough_passes() -> None:
+    """A car looping inside the view (a car park) never leaves it: one pass however many
+    loops, which a sixty-sixth probe's loops were refused for, 7 of 7. Tracked heading every
+    way it is the vehicle (no other road user follows its poses through a full turn); half
+    a loop is not enough, and the reason says how far round it was tracked."""
+    scene = make_scene(n_passes=1, loop_radius_m=8.0, split_pass=0)
+    hyps, selection = _select(scene)
+    assert selection.n_passes == 1
+    assert set(selection.accepted_track_ids) == set(scene.vehicle_track_ids)
+    np.testing.assert_allclose(selection.extrinsics.translation_m,
+                               scene.truth.translation_m, atol=1e-6)
+    assert hypotheses.headings_seen(scene.tracks, scene.recording.vehicle, 0.0) == 12
+    half = make_scene(n_passes=1, loop_radius_m=20.0, split_pass=0)
+    with pytest.raises(InsufficientDataError,
+                       match=r'a loop inside the view, tracked in [4-7] of 12 30-deg sectors, '
+                             r'need 10'):
+        _select(half)
