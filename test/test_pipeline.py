@@ -741,10 +741,12 @@ def test_the_clock_offset_has_its_uncertainty_and_none_where_not_estimated(drive
     expected = (held if held is not None
                 else math.hypot(math.sqrt(result.refinement.covariance[6, 6]), 0.01))
     assert sigma['time_offset_s'] == pytest.approx(expected) and 0.01 <= expected < 0.1
-    # each rotation axis apart too: the radial velocities pin the yaw far better than the
-    # tilt, which one RMS angle hid
+    # each rotation axis apart too, as the result's rpy_deg: the radial velocities pin the
+    # yaw far better than the tilt, which one RMS angle hid
+    from radar_calib_ros.core.quality import rpy_sigmas_deg
     axes = np.array([sigma['roll_deg'], sigma['pitch_deg'], sigma['yaw_deg']])
-    assert np.sqrt(np.sum(axes ** 2)) <= sigma['rotation_deg'] * (1 + 1e-9)
+    np.testing.assert_allclose(axes, rpy_sigmas_deg(result.refinement.covariance,
+                                                    result.extrinsics.rotation), rtol=1e-9)
     assert sigma['yaw_deg'] < sigma['pitch_deg']
     fixed = run_calibration(recording, replace_config(config,
                                                       **{'sync.estimate_time_offset': False}))

@@ -5,6 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from calib_scene import PARKED, YAW0_DEG, make_scene
 
 from radar_calib_ros import metrics
@@ -651,3 +652,31 @@ def test_targets_centred_off_the_box_ask_where_the_reference_point_is() -> None:
     assert front.size >= 2 * quality._OFF_CENTRE_TARGETS
     shifted = replace(config, vehicle=replace(vehicle, rear_overhang=vehicle.rear_overhang + 2))
     assert quality._reference_point_advice(scene.truth, recording, front, shifted) is None
+
+
+def test_rpy_sigmas_follow_the_result_angles() -> None:
+    """The result's roll/pitch/yaw sigmas are those of its rpy_deg: a turn about the
+    horizontal boresight moves the reported yaw by tan(pitch) of it (a sixty-sixth probe's
+    one-road drives had yaw errors outside two yaw sigmas that their loose roll made)."""
+    rng = np.random.default_rng(4)
+    rotation = Rotation.from_euler('xyz', [2.0, 25.0, 140.0], degrees=True).as_matrix()
+    a = rng.normal(size=(3, 3)) * 1e-3
+    cov = np.zeros((7, 7))
+    cov[:3, :3] = a @ a.T
+    # linearised by finite differences of the result's own angles under left turns
+    step = 1e-6
+    base = Rotation.from_matrix(rotation).as_euler('xyz')
+    jac = np.column_stack([
+        (Rotation.from_rotvec(step * e) * Rotation.from_matrix(rotation)).as_euler('xyz') - base
+        for e in np.eye(3)]) / step
+    expected = np.degrees(np.sqrt(np.diag(jac @ cov[:3, :3] @ jac.T)))
+    np.testing.assert_allclose(quality.rpy_sigmas_deg(cov, rotation), expected, rtol=1e-4)
+    # a roll about the horizontal boresight alone: the yaw moves by tan(25 deg) of it
+    along = quality.boresight_axes(rotation)[0]
+    cov[:3, :3] = 1e-4 * np.outer(along, along)
+    roll, pitch, yaw = quality.rpy_sigmas_deg(cov, rotation)
+    assert yaw == pytest.approx(np.degrees(1e-2) * np.tan(np.radians(25.0)), rel=1e-6)
+    assert quality.uncertainty_from_covariance(cov, rotation)['yaw_deg'] == pytest.approx(0.0)
+    # looking straight down the roll and yaw are one: about the axes instead, not infinite
+    down = Rotation.from_euler('xyz', [0.0, 89.9, 30.0], degrees=True).as_matrix()
+    assert np.all(np.isfinite(quality.rpy_sigmas_deg(cov, down)))
