@@ -502,6 +502,26 @@ def _fits_better(other: Refinement, first: Refinement) -> bool:
             and other.n_targets >= _RESTART_TARGET_SHARE * first.n_targets)
 
 
+def _clock_sigma_capped(covariance: F64, cap_s: float) -> F64:
+    """``covariance`` (7x7) with the clock offset's sigma at most ``cap_s`` [s], its row and
+    column scaled alike (the correlations kept, the pose block untouched).
+
+    Why: with few passes the clock may be fixed only by all of them together (drives one
+    way and the other tell a clock from a position along the road), and a pass left out
+    leaves it free: the linearised jackknife then steps seconds away. A sixty-sixth
+    probe's three-pass drive had the clock to 0.6 ms and reported it at +-3.3 s (+-4.1 s
+    with the offset it advised). No fit is less sure of the clock than the range searched
+    for it (``sync.max_time_offset``, or the offset found beyond it)."""
+    variance = float(covariance[6, 6])
+    if not variance > cap_s ** 2:
+        return covariance
+    scale = cap_s / math.sqrt(variance)
+    out = np.array(covariance, float, copy=True)
+    out[6, :] *= scale
+    out[:, 6] *= scale
+    return out
+
+
 def _held_clock_shift(velocity_mps: F64, weight: F64) -> F64:
     """(7, 7) outer product of how the pose moves per second of a held clock offset (its
     own entry 1): against the vehicles' mean velocity over the fitted targets.
@@ -990,6 +1010,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         tau_held = max(tau_held, config.sync.max_time_offset / math.sqrt(3.0))
         velocity = poses.at(data.times.frame_t + est.time_offset_s)[2][data.times.inverse]
         cov7 += tau_held ** 2 * _held_clock_shift(velocity, data.sqrt_weight ** 2)
+    cov7 = _clock_sigma_capped(cov7, max(config.sync.max_time_offset,
+                                         abs(est.time_offset_s)))
     diagnostics = _diagnostics(model, x_hat, r, data, pc, cov7, est, recording, poses,
                                config, fit, rounds, scatter)
     if plane_moved is not None:

@@ -2220,3 +2220,24 @@ def test_the_road_planes_own_uncertainty_joins_the_tilt_about_one_road() -> None
     assert refine._plane_swing(fit, 0.0) is fit
     wide = dataclasses.replace(fit, diagnostics={**fit.diagnostics, 'line_spread_m': 12.0})
     assert refine._plane_swing(wide, 8.0) is wide
+
+
+def test_the_clock_sigma_is_no_wider_than_the_range_searched() -> None:
+    """A pass left out of three may leave the clock free, and the jackknife stepped
+    seconds away (a sixty-sixth probe: +-3.3 s on a clock found to 0.6 ms): the clock's
+    sigma is capped, its correlations with the pose kept, the pose block untouched."""
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(7, 7))
+    cov = a @ a.T * 1e-2
+    cov[6, :] *= 30.0
+    cov[:, 6] *= 30.0
+    capped = refine._clock_sigma_capped(cov, 0.25)
+    assert math.sqrt(capped[6, 6]) == pytest.approx(0.25)
+    np.testing.assert_array_equal(capped[:6, :6], cov[:6, :6])
+    corr = cov[:6, 6] / math.sqrt(cov[6, 6])
+    np.testing.assert_allclose(capped[:6, 6] / math.sqrt(capped[6, 6]), corr)
+    assert np.all(np.linalg.eigvalsh(capped) > -1e-12)
+    small = cov.copy()
+    small[6, :] /= 1e3
+    small[:, 6] /= 1e3
+    assert refine._clock_sigma_capped(small, 0.25) is small
