@@ -27,7 +27,7 @@ from radar_calib_ros.result import calibration_dict, quality_dict
 from radar_calib_ros.types import (
     F64, Extrinsics, GroundPlane, Hypothesis, HypothesisSelection, MountTurn, QualityReport,
     Refinement, SmoothedTrack, Targets, TrackedTargets)
-from radar_calib_ros.vehicle_track import heading_offset_is_grid
+from radar_calib_ros.vehicle_track import TWIST_MAX_MPS, heading_offset_is_grid
 
 _LOG = logging.getLogger(__name__)
 
@@ -1101,7 +1101,8 @@ def _data_notes(recording: Recording, corrections: list[str],
         notes.append(lattice)
     glitches = recording.counters.get('odometry_twist_glitches', 0)
     if glitches:
-        notes.append(f'{glitches} Odometry messages carry a twist beyond 100 m/s (360 km/h), '
+        notes.append(f'{glitches} Odometry messages carry a twist beyond {TWIST_MAX_MPS:g} m/s '
+                     f'({3.6 * TWIST_MAX_MPS:g} km/h), '
                      'which no road vehicle drives: left out. Check the driver that '
                      'publishes the Odometry.')
     apart_s = recording.counters.get('odometry_other_clock_s')

@@ -152,11 +152,11 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
         # probe's -13 500 m/s once a pass (8 of 17 784 samples) read as a twist speed 26 %
         # off, 'rescaled' every twist, and the calibration was refused for radial velocities
         # that were not the vehicle's.
-        glitch = [not math.hypot(*o.velocity_body_mps[:2]) <= _TWIST_MAX_MPS for o in odoms]
+        glitch = [not math.hypot(*o.velocity_body_mps[:2]) <= TWIST_MAX_MPS for o in odoms]
         if any(glitch):
             counters['odometry_twist_glitches'] = sum(glitch)
             _LOG.warning('%d Odometry samples carry a twist beyond %.0f m/s: left out',
-                         sum(glitch), _TWIST_MAX_MPS)
+                         sum(glitch), TWIST_MAX_MPS)
             odoms = [o for o, bad in zip(odoms, glitch) if not bad]
     o_stamps = np.array([o.stamp_ns for o in odoms], np.int64)
     if odoms and has_fixes:
@@ -1386,7 +1386,7 @@ _TWIST_CHECK_SPAN_S = 1.0
 #: Fewest samples of a moving vehicle (above this speed, m/s) to judge the twist on.
 _TWIST_CHECK_SPEED_MPS = 2.0
 #: A twist speed beyond this [m/s] (360 km/h) is no road vehicle's: the sample is left out.
-_TWIST_MAX_MPS = 100.0
+TWIST_MAX_MPS = 100.0
 _TWIST_CHECK_SAMPLES = 10
 
 
