@@ -261,6 +261,10 @@ _ROAD_PLANE_MIN_WIDTH_M = 6.0
 #: of targets along one lane is undetermined about it (80 deg from the other seen).
 _PLANE_SIGMA_MAX_DEG = 10.0
 _ONE_LANE_WIDTH_M = 1.2
+#: Least height [m] of the radar above a plane of moving targets for it to be a road's: a
+#: radar sees the road from above, and the plane runs through the road users' targets, a
+#: metre or less above the road.
+_LEAST_HEIGHT_ABOVE_M = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -344,6 +348,21 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
                'apart', tilt)
     centred = points_m[road_users] - points_m[road_users].mean(axis=0)
     width = _width(centred @ _plane_basis(roads.normal)[:, :2])
+    if (ground.offset_m > -_LEAST_HEIGHT_ABOVE_M >= roads.offset_m
+            and width < _ROAD_PLANE_MIN_WIDTH_M):
+        # The plane of all moving targets runs level with the radar or above it: no road's.
+        # False alarms with random radial velocities, a few a frame, fill the view's volume
+        # and outweigh the road users' targets (a sixty-seventh probe's T-junction at 8 a
+        # frame: that plane 1.5 m above the radar and 24 deg off its up, kept over the
+        # road users' 2 deg off because they drove along one road; the pitch 13-20 deg
+        # off, the sign turned, at exit 0). The road users' plane is kept, as uncertain
+        # about their road as such a plane is.
+        _LOG.info('the plane of all moving targets lies %.1f m above the radar: the road '
+                  'users\' plane is kept, %.1f deg from it', ground.offset_m, tilt)
+        used = np.flatnonzero(road_users)[roads.used]
+        return (dataclasses.replace(roads, used=used.astype(np.int64),
+                                    tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)),
+                MovingClutter(float(1.0 - road_users.mean()), tilt))
     if width < _ONE_LANE_WIDTH_M:
         # Road users in one lane only (the vehicle alone on a one-way street): nothing
         # moving shows the turn about that lane, whichever plane is kept, and with no other

@@ -361,3 +361,32 @@ def test_unique_track_frame_pairs_are_those_of_numpy_unique() -> None:
                                            return_inverse=True)
     np.testing.assert_array_equal(pairs, expected)
     np.testing.assert_array_equal(inverse, expected_inverse.ravel())
+
+
+def test_false_alarms_that_lift_the_plane_above_the_radar_give_way_to_the_road_users() -> None:
+    """False alarms with random radial velocities, a few a frame uniform in range over the
+    beam, fill the view's volume: the plane of all moving targets then runs level with the
+    radar or above it, which no road's does (a sixty-seventh probe's T-junction: 1.5 m
+    above it, the pitch 13-20 deg off with its sign turned). Along one road the road users'
+    plane is kept instead, as uncertain as its difference from the other."""
+    points, times, tracks, up = _tracked_scene(3, rain_per_frame=0, lanes=(-1.75, 1.75))
+    few = tracks < 4                                 # four road users, 3000 targets
+    points, times, tracks = points[few], times[few], tracks[few]
+    rng = np.random.default_rng(5)
+    n = 20_000
+    r = rng.uniform(3.0, 100.0, n)
+    az = rng.uniform(-1.0, 1.0, n)
+    el = rng.uniform(-0.2, 0.2, n)
+    alarms = np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az),
+                              r * np.sin(el)])
+    points = np.concatenate([points, alarms])
+    times = np.concatenate([times, rng.uniform(0.0, 125.0, n)])
+    tracks = np.concatenate([tracks, np.full(n, -1)])
+    fast = ground_plane.track_speeds(points, times, tracks) >= 2.5
+    assert fit_ground_plane(points[fast], GroundConfig()).offset_m > -0.5
+    plane, clutter = ground_plane.fit_road_plane(points, times, tracks, GroundConfig())
+    assert plane.offset_m < -HEIGHT_M + 1.5 and plane.normal @ up > 0.0
+    assert _angle_deg(plane.normal, up) < 3.0
+    assert clutter is not None and plane.tilt_sigma_deg == pytest.approx(
+        min(clutter.tilt_deg, ground_plane._PLANE_SIGMA_MAX_DEG))
+    assert (tracks[plane.used] >= 0).all()
