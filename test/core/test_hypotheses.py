@@ -543,3 +543,19 @@ def test_a_loop_inside_the_view_counts_as_enough_passes() -> None:
                        match=r'a loop inside the view, tracked in [4-7] of 12 30-deg sectors, '
                              r'need 10'):
         _select(half)
+
+
+def test_two_passes_turning_through_half_the_compass_are_enough() -> None:
+    """At a junction the vehicle stops, turns and leaves inside the view, and its tracks
+    agree on fewer passes than it drove (a sixty-seventh probe: 14 turning drives refused
+    as 'seen in 2 passes'). Two passes that turned through half the compass or more are
+    enough; two straight ones are not (``test_too_few_passes_exits_with_the_numbers``),
+    nor is one such pass alone."""
+    scene = make_scene(n_passes=2, loop_radius_m=20.0)
+    _, selection = _select(scene)
+    assert selection.n_passes == 2
+    assert hypotheses.headings_seen(scene.tracks, scene.recording.vehicle, 0.0) >= 6
+    np.testing.assert_allclose(selection.extrinsics.translation_m,
+                               scene.truth.translation_m, atol=1e-6)
+    with pytest.raises(InsufficientDataError):
+        _select(make_scene(n_passes=1, loop_radius_m=20.0, split_pass=0))
