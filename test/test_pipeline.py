@@ -1374,3 +1374,47 @@ def test_an_imaging_radars_many_targets_are_named_with_the_setting_that_thins_th
     assert pipeline._dense_radar_note(dense, capped) is None  # type: ignore[arg-type]
     sparse = SimpleNamespace(counters={'radar_frames': 100, 'targets': 40_000})
     assert pipeline._dense_radar_note(sparse, CalibConfig()) is None  # type: ignore[arg-type]
+
+
+def test_an_open_boresight_restarts_stage_7_at_the_fitted_clock(monkeypatch: Any) -> None:
+    """Drives along the boresight leave the position there to the start, which the paper's
+    stages made at their own clock offset (a sixty-eighth probe's gantries, stamps 80 ms
+    off at 22-30 m/s: 1.8-2.6 m off with the clock found): stage 7 runs again at the fitted
+    offset, and the fit from there is kept where it explains the vehicle's targets better."""
+    from types import SimpleNamespace
+
+    from radar_calib_ros.core import polygon, refine
+
+    stage_clock, fitted = 0.0, 0.08
+    selection = SimpleNamespace(extrinsics=Extrinsics(np.eye(3), np.zeros(3), stage_clock))
+    seen: list[float] = []
+
+    def fit(translation: list[float], clock: float, cost: float, along: float = 2.0) -> Any:
+        return SimpleNamespace(extrinsics=Extrinsics(np.eye(3), np.array(translation), clock),
+                               n_targets=1000,
+                               diagnostics={'sigma_along_boresight_m': along,
+                                            'cost_per_target': cost})
+
+    def closest(extrinsics: Extrinsics, *args: Any) -> Extrinsics:
+        seen.append(extrinsics.time_offset_s)
+        return Extrinsics(np.eye(3), np.array([2.0, 0.0, 0.0]), extrinsics.time_offset_s)
+
+    monkeypatch.setattr(polygon, 'closest_target_fit', closest)
+    monkeypatch.setattr(polygon, 'polygon_offset', lambda c, *a: c)
+    first = fit([0.0, 0.0, 0.0], fitted, 3.0)
+    ground = SimpleNamespace(normal=np.array([0.0, 0.0, 1.0]), tilt_sigma_deg=0.0)
+    config = CalibConfig()
+    for cost, kept in ((2.5, True), (3.5, False)):
+        monkeypatch.setattr(refine, 'refine_extrinsics', lambda start, *a, **k: fit(
+            list(start.translation_m), 0.09, cost))
+        again = pipeline._start_at_fitted_clock(first, selection, None, None, ground, config)
+        assert seen[-1] == fitted and (again is not first) == kept
+        if kept:
+            np.testing.assert_allclose(again.extrinsics.translation_m, [2.0, 0.0, 0.0])
+    # the position pinned (a junction's crossing drives), or the clocks agreeing: no rerun
+    seen.clear()
+    for refinement in (fit([0.0, 0.0, 0.0], fitted, 3.0, along=0.1),
+                       fit([0.0, 0.0, 0.0], 0.01, 3.0)):
+        assert pipeline._start_at_fitted_clock(refinement, selection, None, None, ground,
+                                               config) is refinement
+    assert seen == []

@@ -491,7 +491,7 @@ _CLOCK_RESTART_S = 0.04
 _RESTART_TARGET_SHARE = 0.98
 
 
-def _fits_better(other: Refinement, first: Refinement) -> bool:
+def fits_better(other: Refinement, first: Refinement) -> bool:
     """Whether a fit from another start explains the vehicle's targets better: a lower
     robust cost per target (priors included) over at least about as many targets. Both
     gates are drawn by the same rule around their own estimate, so a fit that is off sees
@@ -548,7 +548,7 @@ def _clock_restarted(initial: Extrinsics, refinement: Refinement,
                      ) -> tuple[Extrinsics, Refinement]:
     """The start and fit to keep: ``refit`` from the clock offset the scan finds at the
     fitted position (``clock_rescan_s``) where that lies beyond ``_CLOCK_RESTART_S`` of the
-    fitted offset, kept where it ``_fits_better``; else the given ones. (The scan finds no
+    fitted offset, kept where it ``fits_better``; else the given ones. (The scan finds no
     peak at the end of its range: a sixty-second probe's on-ramp had one at -0.25 s, where
     the refit held the offset and was 1.7 m off.)"""
     restart = refinement.diagnostics.get('clock_rescan_s')
@@ -560,7 +560,7 @@ def _clock_restarted(initial: Extrinsics, refinement: Refinement,
         other = refit(started)
     except (InsufficientDataError, _Diverged):
         return initial, refinement
-    if not _fits_better(other, refinement):
+    if not fits_better(other, refinement):
         _LOG.info('clock offset started again at %+.3f s: fitted %+.3f s, kept %+.3f s',
                   restart, other.extrinsics.time_offset_s, fitted)
         return initial, refinement
