@@ -391,11 +391,11 @@ LOOP_SECTORS = 10
 #: ... and for a group seen on one pass fewer than ``min_passes`` (two at least): half the
 #: compass. Why: at a junction the vehicle stops, turns and leaves inside the view, and
 #: its tracks through the turns agree on fewer passes than it drove (a sixty-seventh
-#: probe's 4-8 turns through a junction: 14 recordings refused as 'seen in 2 passes' or
-#: even 'never in the radar's view', each calibrated to 1-12 cm, one 65 cm, inside 2 sigma
-#: with min_passes 2, on 3-6 passes in the end). Straight drives one way and the other
-#: make two sectors; another road user's tracks fit the vehicle's through turns only where
-#: it turned with it, on both passes.
+#: probe's 3-8 turns through a junction: 26 of 105 recordings refused as 'seen in 2
+#: passes' or even 'never in the radar's view'; the loop rule above calibrates 9, this one
+#: 7 more, at 4-73 cm, each inside 2 sigma). Straight drives one way and the other make two
+#: sectors; another road user's tracks fit the vehicle's through turns only where it turned
+#: with it, on both passes.
 TURN_SECTORS = 6
 
 
@@ -578,7 +578,8 @@ def prune_hypotheses(hyps: Sequence[Hypothesis], tracks: tuple[SmoothedTrack, ..
     A core is eligible when its tracks span at least ``min_passes`` distinct passes
     (fragments of one pass of another car agree perfectly with each other, so agreement
     only counts across passes), or saw the vehicle heading every way (a loop inside the
-    view, ``LOOP_SECTORS``). Among eligible cores the lowest mean pairwise rotation
+    view, ``LOOP_SECTORS``), or one pass fewer turning through half the compass
+    (``TURN_SECTORS``). Among eligible cores the lowest mean pairwise rotation
     angle wins (the paper's rule); cores within ``angle_tie_deg`` of it tie, and the tie
     goes to the core seen in more passes (the vehicle is seen on every pass, a decoy only
     by coincidence), then to the lower merged RMS (the vehicle's timing matches its own
