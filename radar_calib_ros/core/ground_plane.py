@@ -357,8 +357,9 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         # road users' 2 deg off because they drove along one road; the pitch 13-20 deg
         # off, the sign turned, at exit 0). The road users' plane is kept, as uncertain
         # about their road as such a plane is.
-        _LOG.info('the plane of all moving targets lies %.1f m above the radar: the road '
-                  'users\' plane is kept, %.1f deg from it', ground.offset_m, tilt)
+        _LOG.info('the plane of all moving targets passes %.1f m above the radar (below '
+                  'where negative): the road users\' plane is kept, %.1f deg from it',
+                  ground.offset_m, tilt)
         used = np.flatnonzero(road_users)[roads.used]
         return (dataclasses.replace(roads, used=used.astype(np.int64),
                                     tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)),
