@@ -355,5 +355,5 @@ class QualityReport:
     # NaN where the clock offset was not estimated (sync.estimate_time_offset false, or
     # the paper's stages only)
     sigma_time_offset_s: float = math.nan
-    # roll, pitch, yaw (about the horizontal boresight, the axis left of it, the vertical)
+    # of the result's rpy_deg: roll, pitch, yaw (``quality.rpy_sigmas_deg``)
     sigma_rotation_axes_deg: tuple[float, float, float] = (math.nan, math.nan, math.nan)
