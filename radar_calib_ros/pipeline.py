@@ -1986,10 +1986,9 @@ def _start_at_fitted_clock(refinement: Refinement, selection: HypothesisSelectio
             or abs(fitted - selection.extrinsics.time_offset_s) < _START_CLOCK_S):
         return refinement
     try:
-        clocked = replace(selection.extrinsics, time_offset_s=fitted)
-        closest = polygon.closest_target_fit(clocked, recording, tracked, selection, config)
-        start = polygon.bracketed_start(closest, polygon.polygon_offset(
-            closest, recording, tracked, selection, config))
+        start = polygon.bracketed_start(*polygon.refine_polygon_steps(
+            replace(selection.extrinsics, time_offset_s=fitted), recording, tracked,
+            selection, config))
         again = refine.refine_extrinsics(start, recording, tracked, selection, config,
                                          ground_normal=ground.normal,
                                          plane_sigma_deg=ground.tilt_sigma_deg)
@@ -2016,9 +2015,8 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
     closest: Extrinsics | None = None
     if config.refine.polygon:
         with stage('polygon'):
-            closest = polygon.closest_target_fit(current, recording, tracked, selection,
-                                                 config)
-            current = polygon.polygon_offset(closest, recording, tracked, selection, config)
+            closest, current = polygon.refine_polygon_steps(current, recording, tracked,
+                                                            selection, config)
         stage_extrinsics['polygon'] = current
     # The contract's v_r convention is a range rate; where the radar's is the opposite, the
     # paper's stages never noticed (they use |v_r| or compare v_r with v_r) but the final

@@ -356,15 +356,11 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         # frame: that plane 1.5 m above the radar and 24 deg off its up, kept over the
         # road users' 2 deg off because they drove along one road; the pitch 13-20 deg
         # off, the sign turned, at exit 0). The road users' plane is kept, as uncertain
-        # about their road as such a plane is.
+        # about their road as such a plane is (below).
         _LOG.info('the plane of all moving targets passes %.1f m above the radar (below '
                   'where negative): the road users\' plane is kept, %.1f deg from it',
                   ground.offset_m, tilt)
-        used = np.flatnonzero(road_users)[roads.used]
-        return (dataclasses.replace(roads, used=used.astype(np.int64),
-                                    tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)),
-                MovingClutter(float(1.0 - road_users.mean()), tilt))
-    if width < _ONE_LANE_WIDTH_M:
+    elif width < _ONE_LANE_WIDTH_M:
         # Road users in one lane only (the vehicle alone on a one-way street): nothing
         # moving shows the turn about that lane, whichever plane is kept, and with no other
         # traffic the moving targets beside it are clutter (a sixty-fifth probe's one-lane
@@ -372,9 +368,9 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         _LOG.info('the road users\' tracks lie in one lane (%.1f m across): the road plane '
                   'is uncertain about it by up to %.0f deg', width, _PLANE_SIGMA_MAX_DEG)
         return dataclasses.replace(ground, tilt_sigma_deg=_PLANE_SIGMA_MAX_DEG), None
-    if tilt <= _CLUTTER_PLANE_DEG:
+    elif tilt <= _CLUTTER_PLANE_DEG:
         return ground, None
-    if width < _ROAD_PLANE_MIN_WIDTH_M:
+    elif width < _ROAD_PLANE_MIN_WIDTH_M:
         # Road users along one road only (the calibration vehicle alone, driving it both
         # ways): their plane turns about the road by the height difference of the cars'
         # front and rear over the lanes' separation, which no target across the road

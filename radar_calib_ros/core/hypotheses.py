@@ -282,14 +282,17 @@ TURNED_AROUND_RAD = np.radians(135.0)
 def heading_change_rad(vehicle: VehicleTrack, from_ns: I64, to_ns: I64) -> F64:
     """(n,) how far the vehicle's heading turned from each ``from_ns`` to ``to_ns``
     (pose-clock stamps) [rad], through +-pi and over several turns."""
-    t = (vehicle.stamps_ns - vehicle.stamps_ns[0]).astype(np.float64)
-    yaw = np.unwrap(vehicle.yaw_rad)
-    turned: F64 = np.abs(
-        np.interp((np.asarray(to_ns, np.int64) - vehicle.stamps_ns[0]).astype(np.float64),
-                  t, yaw)
-        - np.interp((np.asarray(from_ns, np.int64) - vehicle.stamps_ns[0]).astype(np.float64),
-                    t, yaw))
+    turned: F64 = np.abs(_yaw_at(vehicle, to_ns) - _yaw_at(vehicle, from_ns))
     return turned
+
+
+def _yaw_at(vehicle: VehicleTrack, stamps_ns: I64) -> F64:
+    """(n,) the vehicle's heading, unwrapped (through +-pi and over several turns),
+    interpolated to pose-clock ``stamps_ns`` [rad]."""
+    t = (vehicle.stamps_ns - vehicle.stamps_ns[0]).astype(np.float64)
+    yaw: F64 = np.interp((np.asarray(stamps_ns, np.int64) - vehicle.stamps_ns[0]).astype(
+        np.float64), t, np.unwrap(vehicle.yaw_rad))
+    return yaw
 
 
 def travelled_m(vehicle: VehicleTrack) -> F64:
@@ -405,10 +408,8 @@ def headings_seen(tracks: Sequence[SmoothedTrack], vehicle: VehicleTrack,
     heading at the stamps of ``tracks`` (its yaw interpolated to them)."""
     if not tracks or len(vehicle) < 2:
         return 0
-    stamps = pose_stamps_ns(np.concatenate([t.stamps_ns for t in tracks]), time_offset_s)
-    t = (vehicle.stamps_ns - vehicle.stamps_ns[0]).astype(np.float64)
-    yaw = np.interp((stamps - vehicle.stamps_ns[0]).astype(np.float64), t,
-                    np.unwrap(vehicle.yaw_rad))
+    yaw = _yaw_at(vehicle, pose_stamps_ns(np.concatenate([t.stamps_ns for t in tracks]),
+                                          time_offset_s))
     sector = np.floor(np.mod(yaw, 2.0 * np.pi) / (2.0 * np.pi / HEADING_SECTORS))
     return int(np.unique(np.clip(sector, 0, HEADING_SECTORS - 1)).size)
 

@@ -175,8 +175,16 @@ def refine_polygon(extrinsics: Extrinsics, recording: Recording, tracked: Tracke
     InsufficientDataError
         The accepted tracks have fewer than 3 frames with a valid pose.
     """
-    return polygon_offset(closest_target_fit(extrinsics, recording, tracked, selection, config),
-                          recording, tracked, selection, config)
+    return refine_polygon_steps(extrinsics, recording, tracked, selection, config)[1]
+
+
+def refine_polygon_steps(extrinsics: Extrinsics, recording: Recording, tracked: TrackedTargets,
+                         selection: HypothesisSelection, config: CalibConfig
+                         ) -> tuple[Extrinsics, Extrinsics]:
+    """:func:`refine_polygon`'s two results: after step 1, and after step 2 from there (the
+    final fit may start between them: :func:`bracketed_start`)."""
+    closest = closest_target_fit(extrinsics, recording, tracked, selection, config)
+    return closest, polygon_offset(closest, recording, tracked, selection, config)
 
 
 def closest_target_fit(extrinsics: Extrinsics, recording: Recording, tracked: TrackedTargets,

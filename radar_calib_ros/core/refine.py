@@ -910,7 +910,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     pb = uncertainty.pass_jackknife_covariance(j * w[:, None], r * w, row_band, jp.T @ jp,
                                                prior_term=False)
     halves_shift = _halves_shift(pc, jp.T @ jp)
-    heading = poses.at(data.times.frame_t + est.time_offset_s)[1][data.times.inverse]
+    _, heading, velocity, _, _ = (v[data.times.inverse] for v in poses.at(
+        data.times.frame_t + est.time_offset_s))
     # the agreement the covariance measures: across passes, or the headings of one or two
     # (the passes themselves stay what the halves, clock and mount checks compare). The
     # headings of one drive share its errors (its clock, how the car reflected that day),
@@ -1008,7 +1009,6 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         cov7[:6, :6] += np.outer(halves_shift[:6], halves_shift[:6])
     if tau_held is not None:
         tau_held = max(tau_held, config.sync.max_time_offset / math.sqrt(3.0))
-        velocity = poses.at(data.times.frame_t + est.time_offset_s)[2][data.times.inverse]
         cov7 += tau_held ** 2 * _held_clock_shift(velocity, data.sqrt_weight ** 2)
     cov7 = _clock_sigma_capped(cov7, max(config.sync.max_time_offset,
                                          abs(est.time_offset_s)))
