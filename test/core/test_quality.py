@@ -91,6 +91,9 @@ def test_bootstrap_over_passes_is_seeded_and_grows_with_disagreement() -> None:
     assert c.sigma_translation_m > 3.0 * a.sigma_translation_m
     assert np.isfinite(a.sigma_rotation_deg) and a.sigma_rotation_deg > 0.0
     assert 'bootstrap over 6 passes' in a.extra['sigma_source']
+    # roll and pitch are the ground plane's, which no draw re-fits: not claimed exact
+    roll, pitch, _ = a.sigma_rotation_axes_deg
+    assert roll >= 0.5 and pitch >= 0.5
     # no draws: no uncertainty rather than a made-up one
     cfg = replace(quiet.config, quality=replace(quiet.config.quality, bootstrap=0))
     report = quality.assess_quality(quiet.truth, None, quiet.recording, quiet.tracked,
