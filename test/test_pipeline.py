@@ -124,16 +124,20 @@ def test_no_agreement_anywhere_or_no_offset_estimation_keeps_the_reason(
     assert tried == [0.0]
 
 
-def _vehicle_seen_stub(monkeypatch: pytest.MonkeyPatch) -> dict[str, bool]:
+def _vehicle_seen_stub(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     """The detection check stubbed: the vehicle is seen where a calibration puts it while
     the returned flag 'vehicle' is True."""
-    seen = {'vehicle': True}
+    seen: dict[str, Any] = {'vehicle': True, 'ratio': 1.0}
 
     def detection(extrinsics: Any, recording: Any, config: CalibConfig) -> float:
         if not seen['vehicle']:
             raise InsufficientDataError('quality', 'does not explain the vehicle')
-        return 1.0
+        return float(seen['ratio'])
+
+    def ratio(extrinsics: Any, recording: Any, config: CalibConfig) -> tuple[float, int]:
+        return float(seen['ratio']), 100
     monkeypatch.setattr(pipeline.quality, 'check_vehicle_detection', detection)
+    monkeypatch.setattr(pipeline.quality, 'vehicle_detection_ratio', ratio)
     return seen
 
 
@@ -149,6 +153,14 @@ def test_agreement_only_a_leap_second_offset_away_is_named_not_taken(
                              r'sync.time_offset to -18 and calibrate again'):
         pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
     assert 18.0 in tried and -18.0 in tried and -17.95 in tried
+    # accepted as a result (0.2) but seen in too few frames to tell the clocks to move by
+    # seconds: dense fast traffic agrees by chance somewhere (a probe's 0.12 s offset was
+    # told to set 19)
+    seen['ratio'] = 0.4
+    with pytest.raises(InsufficientDataError) as err:
+        pipeline._hypotheses((), _NO_LAG, None, _config())  # type: ignore[arg-type]
+    assert 'leap' not in str(err.value)
+    seen['ratio'] = 1.0
     # other road users agreeing by chance at such an offset: the vehicle is not seen where
     # their calibration puts it, so no hint (a vehicle-never-in-view recording got one)
     seen['vehicle'] = False
