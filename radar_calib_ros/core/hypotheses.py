@@ -352,12 +352,41 @@ def drive_passes(t_s: F64, vehicle: VehicleTrack, gap_s: float) -> I64:
     return drive_of_run[runs].astype(np.int64)
 
 
+#: A hole in the pose stream across which the vehicle moved farther than this many times
+#: what it would have driven in it at the faster of its speeds either side, plus
+#: ``STOP_TRAVEL_M``, joins two drives (``spliced_stamps_ns``).
+SPLICE_SPEED_FACTOR = 1.5
+
+
+def spliced_stamps_ns(vehicle: VehicleTrack) -> I64:
+    """Pose stamps that resume the stream after a hole the vehicle could not have driven
+    across at its speed: a recording spliced from drives (or a vehicle taken off and back
+    on the road), where it may have been anywhere in between.
+
+    Why: a sixty-ninth probe's drives were one pose stream with a 5-6.5 s hole between
+    them, across which a car at 6-8 m/s appeared 139-190 m away on another arm of the
+    junction, never beyond the reach of an object-list radar that tracked to 116 m, nor
+    turned around: its six drives counted as one pass, and 19 of its recordings were
+    refused ('none agrees with one from another pass') while the tracks agreed to
+    decimetres. A hole the vehicle drove across (fixes lost under a bridge) moves it by its
+    speed times the hole, and stays one drive."""
+    if len(vehicle) < 2:
+        return np.zeros(0, np.int64)
+    dt = np.diff(vehicle.stamps_ns) * 1e-9
+    jump = np.hypot(*np.diff(vehicle.positions_m[:, :2], axis=0).T)
+    speed = np.hypot(vehicle.velocities_mps[:, 0], vehicle.velocities_mps[:, 1])
+    driven = dt * np.maximum(speed[:-1], speed[1:])
+    spliced: I64 = vehicle.stamps_ns[1:][jump > SPLICE_SPEED_FACTOR * driven + STOP_TRAVEL_M]
+    return spliced
+
+
 def away_stamps_ns(vehicle: VehicleTrack, sensor_xy_m: F64, reach_m: float) -> I64:
     """Sorted pose stamps at which the vehicle was farther than ``reach_m`` from the sensor
-    (horizontally): two tracks with none of them in between saw one stay in the view."""
+    (horizontally), or may have been (``spliced_stamps_ns``): two tracks with none of them
+    in between saw one stay in the view."""
     d = np.hypot(vehicle.positions_m[:, 0] - sensor_xy_m[0],
                  vehicle.positions_m[:, 1] - sensor_xy_m[1])
-    away: I64 = vehicle.stamps_ns[d > reach_m]
+    away: I64 = np.union1d(vehicle.stamps_ns[d > reach_m], spliced_stamps_ns(vehicle))
     return away
 
 

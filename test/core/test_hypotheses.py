@@ -369,6 +369,35 @@ def test_a_u_turn_out_of_view_but_within_reach_starts_another_pass() -> None:
     assert hypotheses.merge_intervals_ns(intervals, 2.0, never_away).shape == (1, 2)
 
 
+def test_a_recording_spliced_from_drives_counts_each_drive() -> None:
+    """Drives joined in one pose stream with a hole between them across which the vehicle
+    jumps farther than it could drive (a sixty-ninth probe's 6.5 s and 139 m at 7 m/s, on
+    another arm of the junction, within the radar's reach): two passes. A hole it drove
+    across (fixes lost for 3 s at 10 m/s: 30 m) stays one drive."""
+    from radar_calib_ros.types import VehicleTrack
+
+    s = 1_000_000_000
+
+    def drives(hole_s: float, jump_m: float, speed: float) -> VehicleTrack:
+        t = np.concatenate([np.arange(0.0, 20.0, 0.1), np.arange(20.0, 40.0, 0.1) + hole_s])
+        x = np.where(t < 20.0, speed * t, speed * (t - hole_s) + jump_m - speed * 0.1)
+        n = t.size
+        velocity = np.column_stack([np.full(n, speed), np.zeros(n), np.zeros(n)])
+        return VehicleTrack((t * s).astype(np.int64), np.column_stack([x, np.zeros((n, 2))]),
+                            np.zeros(n), velocity, np.zeros(n))
+
+    spliced = drives(6.5, 139.0, 7.0)
+    assert hypotheses.spliced_stamps_ns(spliced).size == 1
+    away = hypotheses.away_stamps_ns(spliced, np.zeros(2), 500.0)   # never beyond reach
+    intervals = np.array([[5 * s, 15 * s], [30 * s, 40 * s]])
+    merged = hypotheses.merge_intervals_ns(intervals, 2.0, away, spliced)
+    np.testing.assert_array_equal(merged, intervals)
+    driven = drives(3.0, 10.0 * 3.0, 10.0)
+    assert hypotheses.spliced_stamps_ns(driven).size == 0
+    away = hypotheses.away_stamps_ns(driven, np.zeros(2), 500.0)
+    assert hypotheses.merge_intervals_ns(intervals, 2.0, away, driven).shape == (1, 2)
+
+
 def test_vehicle_view_passes_counts_the_passes_a_group_misses() -> None:
     # passes 0 and 1 on one lane, 2 and 3 on another: under the true calibration the
     # vehicle is in view in all four, and its own tracks follow it in all four; a group
