@@ -491,13 +491,14 @@ _CLOCK_RESTART_S = 0.04
 _RESTART_TARGET_SHARE = 0.98
 
 
-def fits_better(other: Refinement, first: Refinement) -> bool:
-    """Whether a fit from another start explains the vehicle's targets better: a lower
-    robust cost per target (priors included) over at least about as many targets. Both
-    gates are drawn by the same rule around their own estimate, so a fit that is off sees
-    its targets further from the box and keeps fewer of them. A fit that held the clock
-    offset at its start (``_TAU_HOLD_SIGMA_S``) has not fitted it, and does not count."""
-    return ('time_offset_held_sigma_s' not in other.diagnostics
+def fits_better(other: Refinement, first: Refinement, *, held_counts: bool = False) -> bool:
+    """Whether a fit from another start (or of corrected targets) explains the vehicle's
+    targets better: a lower robust cost per target (priors included) over at least about
+    as many targets. Both gates are drawn by the same rule around their own estimate, so a
+    fit that is off sees its targets further from the box and keeps fewer of them. A fit
+    that held the clock offset at its start (``_TAU_HOLD_SIGMA_S``) has not fitted it, and
+    does not count, unless ``held_counts`` (the same start, other targets)."""
+    return ((held_counts or 'time_offset_held_sigma_s' not in other.diagnostics)
             and other.diagnostics['cost_per_target'] < first.diagnostics['cost_per_target']
             and other.n_targets >= _RESTART_TARGET_SHARE * first.n_targets)
 
