@@ -119,11 +119,15 @@ __all__ = ['ClockDrift', 'n_range_terms', 'range_columns', 'reflection_height_pr
 
 _LOG = logging.getLogger(__name__)
 
-#: What a 2-D radar leaves of roll/pitch and altitude (1 sigma): a roadside radar's mount is
-#: within a few degrees of level, nothing better; its altitude comes from the dip of the
-#: radial velocities' line of sight, which the reflection heights and the held tilt blur
-#: (a fifth probe's 2-D radars: 23-39 cm below the truth, with 17 cm from the heights).
-_PLANAR_TILT_SIGMA_DEG = 5.0
+#: What a 2-D radar leaves of roll and pitch (1 sigma each), held level where its mount's
+#: were not measured: a roadside radar's roll is within a few degrees of level, but its
+#: pitch is what aims it at the road, 3-15 deg down on a pole (a sixty-ninth probe's pitched
+#: 13.8-15 deg were reported level at 5 deg, 1 sigma, outside two). Its altitude comes
+#: from the dip of the radial velocities' line of sight, which the reflection heights and
+#: the held tilt blur (a fifth probe's 2-D radars: 23-39 cm below the truth, with 17 cm
+#: from the heights).
+_PLANAR_ROLL_SIGMA_DEG = 3.0
+_PLANAR_PITCH_SIGMA_DEG = 8.0
 
 #: Relative 1-sigma of a yaw rate from fixes alone (``vehicle_track._course_over_ground``):
 #: the course differentiated read turns 20 % low on our simulator and 7-14 % low on
@@ -135,8 +139,6 @@ _FIX_YAW_RATE_SIGMA = 0.05
 _PLANAR_HEIGHT_SIGMA_M = 0.3
 #: Prior sigma that holds a 2-D radar's roll and pitch at the start [rad].
 _PLANAR_HOLD_RAD = 1e-5
-#: Tilt by which a 2-D radar's held roll and pitch are moved to see what they carry [deg].
-_PLANAR_PROBE_DEG = 2.0
 #: Gate rounds fit at most about this many targets; the final fit takes them all. An
 #: imaging radar puts 100+ targets on the car in every frame (120 000 in five minutes at
 #: 20 Hz), and each LM step costs in proportion; the gate and the scatter need far fewer.
@@ -376,10 +378,11 @@ def _with_mount_tilt(initial: Extrinsics, config: CalibConfig) -> Extrinsics:
                       float(initial.time_offset_s))
 
 
-def _planar_tilt_sigma_deg(config: CalibConfig) -> float:
+def _planar_tilt_sigmas_deg(config: CalibConfig) -> tuple[float, float]:
     """1-sigma of a 2-D radar's held roll and pitch: as measured at its mount, or
-    ``_PLANAR_TILT_SIGMA_DEG`` where it was not."""
-    return config.radar.mount_tilt_sigma_deg or _PLANAR_TILT_SIGMA_DEG
+    ``_PLANAR_ROLL_SIGMA_DEG`` and ``_PLANAR_PITCH_SIGMA_DEG`` where they were not."""
+    given = config.radar.mount_tilt_sigma_deg
+    return (given, given) if given > 0.0 else (_PLANAR_ROLL_SIGMA_DEG, _PLANAR_PITCH_SIGMA_DEG)
 
 
 def _drives_along_boresight(est: Extrinsics, recording: Recording, tracked: TrackedTargets,
@@ -600,17 +603,21 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
                                   scan_clock=scan_clock).extrinsics.translation_m
         except InsufficientDataError:
             alternative = None
-    tilted: list[F64] = []
+    tilted: list[F64 | None] = []
     if not recording.has_elevation:
         # A 2-D radar's roll and pitch are held level (nothing measures them), yet they
         # still move its position: a tilted plane maps azimuth to bearing differently
         # off the boresight (a fifth probe's radar pitched 7 deg: 45 cm along the
-        # boresight, reported at 18). The fit is run again with each held at a tilt, and
-        # what it moves joins the covariance for their reported uncertainty.
+        # boresight, reported at 18). The fit is run again with each held at its sigma
+        # (the pitch downwards, as mounts are), and what that moves joins the covariance.
+        # At the sigma, not extrapolated from a small tilt: what the pitch moves grows
+        # with its square (the slant range's dip), and a sixty-ninth probe's radars
+        # pitched 4-15 deg down were all placed 0.55-1.83 m back along the boresight,
+        # where 2 deg had moved them 0.05 m.
         single = dataclasses.replace(config, refine=dataclasses.replace(
             config.refine, model_check=False))
-        for axis in np.eye(3)[:2]:
-            turn = Rotation.from_rotvec(math.radians(_PLANAR_PROBE_DEG) * axis)
+        for axis, sigma_deg in zip(np.eye(3)[:2], _planar_tilt_sigmas_deg(config)):
+            turn = Rotation.from_rotvec(math.radians(sigma_deg) * axis)
             start = Extrinsics(np.asarray(initial.rotation, float) @ turn.as_matrix(),
                                np.asarray(initial.translation_m, float),
                                float(initial.time_offset_s))
@@ -619,7 +626,7 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
                                       None, drift=drift, start_sigma_m=start_sigma_m,
                                       scan_clock=scan_clock).extrinsics.translation_m)
             except InsufficientDataError:
-                continue
+                tilted.append(None)
     refinement = _refine(initial, recording, tracked, selection, config, alternative,
                          tilted, ground_normal=ground_normal, drift=drift,
                          start_sigma_m=start_sigma_m, scan_clock=scan_clock)
@@ -697,7 +704,7 @@ def _refine_checked(initial: Extrinsics, recording: Recording, tracked: TrackedT
 def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
             selection: HypothesisSelection, config: CalibConfig,
             alternative_translation: F64 | None,
-            tilted_translations: list[F64] | None = None, *,
+            tilted_translations: list[F64 | None] | None = None, *,
             ground_normal: F64 | None = None, drift: ClockDrift | None = None,
             tilt_prior_deg: float | None = None,
             start_sigma_m: float = _START_SIGMA_M, scan_clock: bool = True) -> Refinement:
@@ -975,14 +982,20 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # no target gives height information above), and those come from the start and
         # second-order effects only. Say so in the covariance rather than report the
         # jackknife's agreement on values nothing measured.
-        tilt_sigma_deg = _planar_tilt_sigma_deg(config)
-        cov7 = uncertainty.add_tilt(cov7, math.radians(tilt_sigma_deg))
+        roll_sigma_deg, pitch_sigma_deg = _planar_tilt_sigmas_deg(config)
+        boresight = np.asarray(est.rotation, float)[:2, 0]
+        boresight = boresight / max(float(np.hypot(*boresight)), 1e-12)
+        left = np.array([-boresight[1], boresight[0]])
+        cov7[:2, :2] += (math.radians(roll_sigma_deg) ** 2 * np.outer(boresight, boresight)
+                         + math.radians(pitch_sigma_deg) ** 2 * np.outer(left, left))
         cov7[5, 5] += _PLANAR_HEIGHT_SIGMA_M ** 2
-        for moved in tilted_translations or []:
-            shift = (np.asarray(moved, float) - est.translation_m) * (
-                tilt_sigma_deg / _PLANAR_PROBE_DEG)
+        for moved, sigma_deg in zip(tilted_translations or [],
+                                    (roll_sigma_deg, pitch_sigma_deg)):
+            if moved is None:
+                continue
+            shift = np.asarray(moved, float) - est.translation_m
             _LOG.debug('2-D radar: %.1f deg of held tilt moves the position by %s m',
-                       tilt_sigma_deg, np.round(shift, 3))
+                       sigma_deg, np.round(shift, 3))
             cov7[3:6, 3:6] += np.outer(shift, shift)
     model_difference = (np.zeros(3) if alternative_translation is None
                         else np.asarray(alternative_translation, float) - est.translation_m)
