@@ -2101,9 +2101,29 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
     refinement: Refinement | None = None
     if config.refine.final:
         with stage('refine'):
-            refinement = refine.refine_extrinsics(current, recording, tracked, selection,
-                                                  config, ground_normal=ground.normal,
-                                                  plane_sigma_deg=ground.tilt_sigma_deg)
+            try:
+                refinement = refine.refine_extrinsics(current, recording, tracked, selection,
+                                                      config, ground_normal=ground.normal,
+                                                      plane_sigma_deg=ground.tilt_sigma_deg)
+            except refine.Diverged as err:
+                # Stage 7 fits the box to the targets nearest the radar, and a long
+                # vehicle's nearest are its front or rear face: it misplaced a seventieth
+                # probe's 9.5-12 m buses and trucks by up to half their length, from where
+                # the fit 'ran off' to the truth and was refused as radial velocities gone
+                # wrong (with refine.polygon false: 0.12 m). Such a fit starts again from
+                # stage 6's estimate, which places the box by all its tracks' targets.
+                if closest is None or not hypotheses.long_vehicle(config):
+                    raise
+                try:
+                    refinement = refine.refine_extrinsics(
+                        selection.extrinsics, recording, tracked, selection, config,
+                        ground_normal=ground.normal, plane_sigma_deg=ground.tilt_sigma_deg)
+                except InsufficientDataError:
+                    raise err from None
+                _LOG.info('stage 7 misplaced the %.1f m vehicle: the final fit ran %.1f m '
+                          'from it, and fitted from stage 6\'s estimate', config.vehicle.length,
+                          err.shift_m)
+                closest = None
             if (closest is not None and refinement.diagnostics['sigma_along_boresight_m']
                     >= uncertainty.OPEN_ALONG_BORESIGHT_M):
                 # The drives leave the position along the boresight to where the fit

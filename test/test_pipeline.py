@@ -464,6 +464,39 @@ def test_an_azimuth_error_is_taken_off_only_where_that_fits_the_vehicle_better(
     assert not any('were corrected by it' in n for n in notes)
 
 
+def test_a_long_vehicle_the_polygon_misplaced_is_fitted_from_stage_6(
+        drive: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Stage 7 takes a long vehicle's nearest targets, its front or rear face, and can
+    misplace its box by half its length, from where the final fit runs off to the truth
+    and is refused (a seventieth probe's buses). For a bus or a truck the fit starts again
+    from stage 6's estimate; for a car the refusal stands."""
+    from radar_calib_ros.groundtruth import calibration_errors
+    from radar_calib_ros.io.bag import read_recording
+
+    summary, config = drive
+    recording = read_recording(summary.paths.bag, config)
+    fit = pipeline.refine.refine_extrinsics
+    from_stage_6: list[bool] = []
+
+    def runs_off_from_stage_7(initial: Any, recording: Any, tracked: Any, selection: Any,
+                              *args: Any, **kwargs: Any) -> Any:
+        from_stage_6.append(initial is selection.extrinsics)
+        if not from_stage_6[-1]:
+            raise pipeline.refine.Diverged('refine', 'the final refinement ran 6.0 m and '
+                                           '3.0 deg away', 6.0, 3.0)
+        return fit(initial, recording, tracked, selection, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline.refine, 'refine_extrinsics', runs_off_from_stage_7)
+    with pytest.raises(InsufficientDataError, match='ran 6.0 m and 3.0 deg away'):
+        pipeline.run_calibration(recording, config)
+    assert from_stage_6 and not any(from_stage_6)
+    monkeypatch.setattr(pipeline.hypotheses, 'long_vehicle', lambda config: True)
+    result = pipeline.run_calibration(recording, config)
+    assert True in from_stage_6
+    errors = calibration_errors(result.calibration(config), summary.truth)
+    assert errors['horizontal_m'] < 0.5, errors
+
+
 def test_a_sloped_road_is_not_called_a_wrong_ground_plane() -> None:
     """Where stage 4's plane lies as tilted in the world (under the final fit) as the
     paper's tilt was off, the road is on a slope, not cluttered: a fifty-second probe's

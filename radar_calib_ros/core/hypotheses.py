@@ -179,7 +179,7 @@ def reflection_variants(corr: Correspondences, config: CalibConfig) -> list[Corr
     """The track's centre correspondences, moved to the faces facing the radar, and (for a
     long vehicle) to its nearest point: where ``facing_radar`` lets the vehicle reflect."""
     variants = [corr, facing_radar(corr, config, keep_better=False)]
-    if _long(config):
+    if long_vehicle(config):
         variants.append(facing_radar(corr, config, keep_better=False, nearest=True))
     return variants
 
@@ -190,7 +190,8 @@ _PREFERENCE_M = 1e-3
 _LONG_VEHICLE_M = 7.0
 
 
-def _long(config: CalibConfig) -> bool:
+def long_vehicle(config: CalibConfig) -> bool:
+    """A bus or a truck (``_LONG_VEHICLE_M``), not a car or a van."""
     return config.vehicle.length >= _LONG_VEHICLE_M
 
 

@@ -114,8 +114,13 @@ from radar_calib_ros.recording import Recording
 from radar_calib_ros.types import (
     F64, I64, Extrinsics, HypothesisSelection, Refinement, TrackedTargets)
 
-__all__ = ['ClockDrift', 'n_range_terms', 'range_columns', 'reflection_height_prior',
-           'refine_extrinsics']
+__all__ = ['ClockDrift', 'Diverged', 'n_range_terms', 'range_columns',
+           'reflection_height_prior', 'refine_extrinsics']
+
+#: The final fit ran farther from the paper's stages than they can be off: raised by
+#: ``refine_extrinsics`` (a subclass of InsufficientDataError, with ``shift_m`` and
+#: ``turn_deg``) for the pipeline to start it elsewhere.
+Diverged = _Diverged
 
 _LOG = logging.getLogger(__name__)
 
