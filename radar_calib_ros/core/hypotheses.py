@@ -367,10 +367,11 @@ def spliced_stamps_ns(vehicle: VehicleTrack) -> I64:
     Why: a sixty-ninth probe's drives were one pose stream with a 5-6.5 s hole between
     them, across which a car at 6-8 m/s appeared 139-190 m away on another arm of the
     junction, never beyond the reach of an object-list radar that tracked to 116 m, nor
-    turned around: its six drives counted as one pass, and 19 of its recordings were
-    refused ('none agrees with one from another pass') while the tracks agreed to
-    decimetres. A hole the vehicle drove across (fixes lost under a bridge) moves it by its
-    speed times the hole, and stays one drive."""
+    turned around: its drives counted as one pass, and 26 of its recordings were refused
+    ('none agrees with one from another pass', 'seen in 2 passes', even 'never in view')
+    while the tracks agreed to decimetres; 18 of them calibrate so. A hole the vehicle
+    drove across (fixes lost under a bridge) moves it by its speed times the hole, and
+    stays one drive."""
     if len(vehicle) < 2:
         return np.zeros(0, np.int64)
     dt = np.diff(vehicle.stamps_ns) * 1e-9
