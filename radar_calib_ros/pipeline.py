@@ -1050,17 +1050,73 @@ def _plane_tilt_deg(normal_sensor: F64, rotation: F64) -> float:
     return math.degrees(math.acos(min(abs(float(up[2])) / float(np.linalg.norm(up)), 1.0)))
 
 
-def _plane_moved_note(plane: dict[str, float], road_tilt_deg: float, clutter: bool) -> str:
+#: Horizontal reach [m] from the radar within which the vehicle's own climb is compared with
+#: stage 4's plane (``_road_follows_plane``), the travel [m] over which a grade is taken,
+#: and the fewest such stretches that tell.
+_SLOPE_REACH_M = 80.0
+_SLOPE_STRETCH_M = 5.0
+_SLOPE_MIN_STRETCHES = 20
+
+
+def _road_follows_plane(normal_sensor: F64, rotation: F64, sensor_xy_m: F64,
+                        recording: Recording) -> bool | None:
+    """Whether the vehicle climbs, where it drove near the radar, as stage 4's plane (its
+    normal in the sensor frame, in the world under ``rotation``) slopes along its travel,
+    within ``_SLOPE_MATCH_DEG``; None where it drove too little there to tell.
+
+    Why: under the final fit stage 4's plane tilts in the world by about as much as the
+    paper's tilt was off, whatever tilted it, so that alone cannot tell a sloped road from
+    clutter: a seventieth probe's flat roads in rain (the plane 4.3-7.9 deg off) were told
+    they sloped 8-14 %. The vehicle's RTK altitude measures the road's grade itself."""
+    up = np.asarray(rotation, float) @ np.asarray(normal_sensor, float)
+    if abs(float(up[2])) < 1e-6:
+        return None
+    vehicle = recording.vehicle
+    xy = vehicle.positions_m[:, :2]
+    s = hypotheses.travelled_m(vehicle)
+    near = np.flatnonzero(np.hypot(*(xy - np.asarray(sensor_xy_m, float)[:2]).T)
+                          <= _SLOPE_REACH_M)
+    ahead = np.searchsorted(s, s[near] + _SLOPE_STRETCH_M)
+    keep = ahead < s.size
+    start, end = near[keep], ahead[keep]
+    step = xy[end] - xy[start]
+    run = np.hypot(step[:, 0], step[:, 1])
+    # a stretch driven, not jumped (a hole in the poses) nor crawled round a corner
+    ok = (run >= 0.8 * _SLOPE_STRETCH_M) & (run <= 1.5 * _SLOPE_STRETCH_M)
+    tilt = float(np.hypot(up[0], up[1]))
+    direction = step / np.maximum(run, 1e-9)[:, None]
+    # only stretches driven within 60 deg of the way the plane slopes show its slope: along
+    # one road it may tilt about the road, across which the vehicle never climbs
+    ok &= np.abs(direction @ (up[:2] / max(tilt, 1e-12))) >= 0.5
+    if int(ok.sum()) < _SLOPE_MIN_STRETCHES:
+        return None
+    climb = (vehicle.positions_m[end[ok], 2] - vehicle.positions_m[start[ok], 2]) / run[ok]
+    plane_climb = -(direction[ok] @ up[:2]) / float(up[2])
+    return bool(np.median(np.abs(plane_climb - climb))
+                <= math.tan(math.radians(_SLOPE_MATCH_DEG)))
+
+
+def _plane_moved_note(plane: dict[str, float], road_tilt_deg: float, clutter: bool,
+                      sloped: bool | None = None) -> str:
     """What the final fit moving the paper's tilt and height says: their ground plane was
-    not the road's (clutter), or, where that plane lies as tilted in the world as their
-    tilt was off, the road itself is not level, which the paper's stages take it to be.
+    not the road's (clutter), or, where the vehicle climbs as that plane slopes
+    (``sloped``, ``_road_follows_plane``; where that cannot tell: the plane lies as tilted
+    in the world as their tilt was off), the road itself is not level, which the paper's
+    stages take it to be.
 
     Why: a fifty-second probe's junction on a 6-7 % slope was told in 6 of 6 runs that the
     ground plane 'was not the road's', tilt 3.1-3.7 deg off; it was the road's, sloped."""
     lower = 'lower' if plane['vertical_m'] > 0 else 'higher'
     off = (f'The paper\'s stages had the radar\'s tilt {plane["tilt_deg"]:.1f} deg off and '
            f'the radar {abs(plane["vertical_m"]):.1f} m {lower} than the final fit puts it: ')
-    if abs(road_tilt_deg - plane['tilt_deg']) <= _SLOPE_MATCH_DEG:
+    if sloped is None and abs(road_tilt_deg - plane['tilt_deg']) <= _SLOPE_MATCH_DEG:
+        return (off + 'either their ground plane (stage 4) was not the road\'s'
+                + (' (the clutter named above)' if clutter else '')
+                + f', or the road in view is not level (that plane tilts {road_tilt_deg:.1f} '
+                'deg by the final fit) across the way the vehicle drove, where its own climb '
+                'cannot show which. The tilt and the height are the final fit\'s, from the '
+                'vehicle\'s own targets.')
+    if sloped:
         return (off + f'the road in view is not level (its plane, stage 4, tilts '
                 f'{road_tilt_deg:.1f} deg, a {100 * math.tan(math.radians(road_tilt_deg)):.0f} '
                 '% slope, by the final fit), and those stages take the road for level. The '
@@ -2165,7 +2221,9 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
         # forty-ninth probe's were told their ground plane was not the road's)
         if plane is not None and recording.has_elevation:
             corrections.append(_plane_moved_note(
-                plane, _plane_tilt_deg(ground.normal, current.rotation), bool(clutter_note)))
+                plane, _plane_tilt_deg(ground.normal, current.rotation), bool(clutter_note),
+                _road_follows_plane(ground.normal, current.rotation,
+                                    current.translation_m[:2], recording)))
             _LOG.warning('%s', corrections[-1])
         turn = refinement.diagnostics.get('mount_turn')
         if turn is not None:

@@ -508,11 +508,44 @@ def test_a_sloped_road_is_not_called_a_wrong_ground_plane() -> None:
     assert _plane_tilt_deg(np.array([0.0, 0.0, 1.0]), turned) == pytest.approx(3.3)
     assert _plane_tilt_deg(turned.T @ np.array([0.0, 0.0, -1.0]), turned) == pytest.approx(0)
     plane = {'tilt_deg': 3.3, 'vertical_m': -2.5}
-    sloped = _plane_moved_note(plane, 3.1, clutter=False)
+    sloped = _plane_moved_note(plane, 3.1, clutter=False, sloped=True)
     assert 'the radar 2.5 m higher' in sloped and 'the road in view is not level' in sloped
     assert 'a 5 % slope' in sloped and "was not the road's" not in sloped
     cluttered = _plane_moved_note(plane, 0.2, clutter=True)
     assert "was not the road's (the clutter named above)" in cluttered
+    # the plane tilts as far as the tilt was off whatever tilted it: where the vehicle's
+    # climb says the road is level (a seventieth probe's flat roads in rain, told they
+    # sloped 8-14 %), it was not the road's; where it cannot tell, either may be
+    flat = _plane_moved_note(plane, 3.1, clutter=True, sloped=False)
+    assert "was not the road's (the clutter named above)" in flat and 'slope' not in flat
+    either = _plane_moved_note(plane, 3.1, clutter=False)
+    assert "either their ground plane (stage 4) was not the road's" in either
+    assert 'or the road in view is not level' in either
+
+
+def test_the_vehicles_climb_tells_a_sloped_road_from_a_tilted_plane() -> None:
+    """Driving east and west on a road that climbs 5 % eastwards near the radar, under a
+    stage-4 plane tilted 5 % the same way: the road follows the plane; on a level road it
+    does not; driving only north-south (across the way the plane slopes) cannot tell."""
+    from types import SimpleNamespace
+
+    from radar_calib_ros.pipeline import _road_follows_plane
+    from radar_calib_ros.types import VehicleTrack
+
+    def drives(heading: str, grade: float) -> Any:
+        t = np.arange(0.0, 60.0, 0.1)
+        along = np.where(t < 30.0, -60.0 + 4.0 * t, 60.0 - 4.0 * (t - 30.0))
+        x, y = (along, np.zeros_like(t)) if heading == 'east' else (np.zeros_like(t), along)
+        z = grade * x
+        n = t.size
+        return SimpleNamespace(vehicle=VehicleTrack(
+            (t * 1e9).astype(np.int64), np.column_stack([x, y, z]), np.zeros(n),
+            np.zeros((n, 3)), np.zeros(n)))
+
+    normal = np.array([-0.05, 0.0, 1.0]) / math.hypot(0.05, 1.0)   # climbs eastwards
+    assert _road_follows_plane(normal, np.eye(3), np.zeros(2), drives('east', 0.05)) is True
+    assert _road_follows_plane(normal, np.eye(3), np.zeros(2), drives('east', 0.0)) is False
+    assert _road_follows_plane(normal, np.eye(3), np.zeros(2), drives('north', 0.0)) is None
 
 
 def test_thinning_each_frame_keeps_the_calibration(drive: Any) -> None:
