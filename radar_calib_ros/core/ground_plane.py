@@ -265,6 +265,15 @@ _ONE_LANE_WIDTH_M = 1.2
 #: radar sees the road from above, and the plane runs through the road users' targets, a
 #: metre or less above the road.
 _LEAST_HEIGHT_ABOVE_M = 0.5
+#: How far the road users' reflections may differ in height across their road [m]: their
+#: plane turns about the road by this over its width (``_one_road_sigma_deg``).
+_ACROSS_ROAD_HEIGHT_M = 0.3
+
+
+def _one_road_sigma_deg(width_m: float) -> float:
+    """How uncertain the road users' plane is about their one road [deg]: a height
+    difference of ``_ACROSS_ROAD_HEIGHT_M`` over the width they spread across (1 sigma)."""
+    return math.degrees(math.atan2(_ACROSS_ROAD_HEIGHT_M, max(width_m, 1e-3)))
 
 
 @dataclass(frozen=True, slots=True)
@@ -360,6 +369,15 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         _LOG.info('the plane of all moving targets passes %.1f m above the radar (below '
                   'where negative): the road users\' plane is kept, %.1f deg from it',
                   ground.offset_m, tilt)
+        # That plane is no road's, so how far it lies from theirs says nothing of theirs:
+        # theirs is as uncertain as a plane along one road is (a seventieth probe's rain
+        # put the first 10-76 deg off, and the tilt was reported at 10 deg, 1 sigma, where
+        # the fit was 0.2-1.3 deg off).
+        used = np.flatnonzero(road_users)[roads.used]
+        return (dataclasses.replace(roads, used=used.astype(np.int64),
+                                    tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG,
+                                                       _one_road_sigma_deg(width))),
+                MovingClutter(float(1.0 - road_users.mean()), tilt))
     elif width < _ONE_LANE_WIDTH_M:
         # Road users in one lane only (the vehicle alone on a one-way street): nothing
         # moving shows the turn about that lane, whichever plane is kept, and with no other

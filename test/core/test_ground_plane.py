@@ -368,7 +368,8 @@ def test_false_alarms_that_lift_the_plane_above_the_radar_give_way_to_the_road_u
     beam, fill the view's volume: the plane of all moving targets then runs level with the
     radar or above it, which no road's does (a sixty-seventh probe's T-junction: 1.5 m
     above it, the pitch 13-20 deg off with its sign turned). Along one road the road users'
-    plane is kept instead, as uncertain as its difference from the other."""
+    plane is kept instead, as uncertain as a plane along one road is (the other's distance
+    from it says nothing of it: rain put it 10-76 deg off, and 10 deg were reported)."""
     points, times, tracks, up = _tracked_scene(3, rain_per_frame=0, lanes=(-1.75, 1.75))
     few = tracks < 4                                 # four road users, 3000 targets
     points, times, tracks = points[few], times[few], tracks[few]
@@ -388,5 +389,18 @@ def test_false_alarms_that_lift_the_plane_above_the_radar_give_way_to_the_road_u
     assert plane.offset_m < -HEIGHT_M + 1.5 and plane.normal @ up > 0.0
     assert _angle_deg(plane.normal, up) < 3.0
     assert clutter is not None and plane.tilt_sigma_deg == pytest.approx(
-        min(clutter.tilt_deg, ground_plane._PLANE_SIGMA_MAX_DEG))
+        min(clutter.tilt_deg, ground_plane._PLANE_SIGMA_MAX_DEG))   # one lane each way
     assert (tracks[plane.used] >= 0).all()
+    # four lanes, 3.5 m apart: the road users' plane about their road is surer than the
+    # false alarms' distance from it says
+    points, times, tracks, up = _tracked_scene(3, rain_per_frame=0,
+                                               lanes=(-5.25, -1.75, 1.75, 5.25))
+    few = tracks < 4
+    points = np.concatenate([points[few], alarms])
+    times = np.concatenate([times[few], rng.uniform(0.0, 125.0, n)])
+    tracks = np.concatenate([tracks[few], np.full(n, -1)])
+    plane, clutter = ground_plane.fit_road_plane(points, times, tracks, GroundConfig())
+    assert clutter is not None and plane.tilt_sigma_deg < clutter.tilt_deg
+    assert (ground_plane._one_road_sigma_deg(ground_plane._ROAD_PLANE_MIN_WIDTH_M)
+            < plane.tilt_sigma_deg < ground_plane._one_road_sigma_deg(2.0))
+    assert _angle_deg(plane.normal, up) < 2.0 * plane.tilt_sigma_deg
