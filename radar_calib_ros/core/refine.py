@@ -235,7 +235,7 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
     # memory-bound, and multi-threaded BLAS only spins on a busy machine (measured 10x
     # slower with 2 cores shared). One thread is as fast when idle and far faster when not.
     if not recording.has_elevation:
-        initial = _with_mount_tilt(initial, config)
+        initial = _above_the_road(_with_mount_tilt(initial, config), recording, config)
     # every fit knows how sure stage 4's plane is (where it is no surer than the fit, the
     # tilt is not held at it: see ``_refine_checked``)
     _checked = functools.partial(_refine_checked, plane_sigma_deg=plane_sigma_deg)
@@ -381,6 +381,32 @@ def _with_mount_tilt(initial: Extrinsics, config: CalibConfig) -> Extrinsics:
                                            math.radians(config.radar.mount_pitch_deg), yaw])
     return Extrinsics(rotation.as_matrix(), np.asarray(initial.translation_m, float),
                       float(initial.time_offset_s))
+
+
+#: Least height [m] above the vehicle's reflections a 2-D radar's altitude starts at.
+_PLANAR_START_ABOVE_M = 3.0
+
+
+def _above_the_road(initial: Extrinsics, recording: Recording,
+                    config: CalibConfig) -> Extrinsics:
+    """A 2-D radar's start raised to at least ``_PLANAR_START_ABOVE_M`` above the
+    vehicle's reflections (the road under its median pose plus the reflection-height
+    prior), where it was lower.
+
+    Why: without elevations the altitude comes from the dip of the radial velocities'
+    line of sight and the slant ranges, both the same for a radar as far below the
+    reflections as above them, and the paper's stages start it at the vehicle's: the fit
+    went either way. A seventy-first probe's 2-D radars seen with vans, minibuses and buses
+    (vehicle.height above about 2.1 m, which raises the reflections' prior above the start)
+    were put 11-18 m low, under the road, at a reported 0.7-1 m; a radar looks down on the
+    road from a pole or a gantry, and from above the fit finds that root."""
+    road = float(np.median(recording.vehicle.positions_m[:, 2])) - config.vehicle.ref_height
+    floor = road + reflection_height_prior(config)[0] + _PLANAR_START_ABOVE_M
+    if initial.translation_m[2] >= floor:
+        return initial
+    translation = np.array(initial.translation_m, float, copy=True)
+    translation[2] = floor
+    return Extrinsics(initial.rotation, translation, float(initial.time_offset_s))
 
 
 def _planar_tilt_sigmas_deg(config: CalibConfig) -> tuple[float, float]:
