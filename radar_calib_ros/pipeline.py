@@ -1887,6 +1887,12 @@ def fast_vehicle_config(recording: Recording, config: CalibConfig
                                                  _FAST_ACCUMULATE_FRAMES),
                 'associate.gate_m': max(config.associate.gate_m,
                                         float(math.ceil(travel + _GATE_BESIDES_TRAVEL_M)))}
+    # a value the user changed from its default is kept as given (as stage 6's thresholds
+    # for a long vehicle, ``_scaled_to_vehicle``): where these do not suit the radar, a
+    # user who set another is not overruled
+    defaults = CalibConfig()
+    settings = {name: value for name, value in settings.items()
+                if config.get(name) == defaults.get(name)}
     if all(config.get(name) == value for name, value in settings.items()):
         return None
     note = (f'The vehicle drove {travel:.1f} m between radar frames ({fast:.0f} m/s at '
@@ -1902,6 +1908,7 @@ def _run_calibration(recording: Recording, config: CalibConfig,
     if len(targets) == 0:
         raise InsufficientDataError('moving', 'the recording has no radar target')
     _check_pose_stream(recording, config)
+    given = config
     fast = fast_vehicle_config(recording, config)
     sparse_note: str | None = None
     if fast is not None:
@@ -1916,67 +1923,107 @@ def _run_calibration(recording: Recording, config: CalibConfig,
         ground, clutter_note, tracks, hyps, selection = _stages_4_to_6(
             recording, tracked, config, stage, tracks_out=made)
     except InsufficientDataError as err:
-        # A radar with about one target per road user a frame (a traffic radar's cluster
-        # list) breaks the paper's clusters of three over three frames into fragments that
-        # never make a track, and stage 6 finds nothing to agree on. Its data are not bad:
-        # looser clustering and shorter tracks calibrate it (an independent 10 Hz radar with
-        # ~1.2 targets on the car: refused with the defaults, 15 cm with these). So on such
-        # a failure, and only then, stages 2-6 run again with them, and a note says so.
-        stage_6 = err.stage == 'hypotheses' and type(err) is InsufficientDataError
-        # said instead of what else was tried, should that fail too
-        short = _short_drive_note(recording, config) if stage_6 else None
-        short_drive = (None if short is None else
-                       InsufficientDataError(err.stage, f'{err.reason.rstrip(".")}. {short}'))
-        sparse = _sparse_radar_config(recording, tracked, config) if stage_6 else None
-        if sparse is None and short_drive is not None:
-            raise short_drive from err
-        levels = (_ground_of_all_targets(recording, tracked, config, stage, made)
-                  if sparse is None and stage_6 else None)
-        if levels is not None:
-            level_config, (ground, clutter_note, tracks, hyps, selection), note = levels
-            return _finish(recording, level_config, stage, progress, tracked, ground, tracks,
-                           selection, clutter_note, note)
-        if sparse is None:
-            mirrored = _mirrored_axis(recording, config) if stage_6 else None
-            if mirrored is not None:
-                likely = ('the elevations (z) most likely, as the mirrored fit hangs the '
-                          'radar upside down' if mirrored == 'z' else
-                          'the azimuths (y) most likely')
-                raise InsufficientDataError(
-                    err.stage, f'{err.reason.rstrip(".")}. Mirrored, the radar\'s targets do '
-                    'follow the vehicle: its point cloud is a mirror image (one axis reversed: '
-                    f'{likely}), which no mount can produce. Fix the driver\'s axes (REP-103: '
-                    'x forward, y left, z up) and calibrate again.') from err
-            lead = _stage_6_lead(err, made, recording, config)
-            if lead is None:
-                raise
-            raise InsufficientDataError(err.stage, f'{lead} {err.reason}') from err
-        sparse_config, per_frame = sparse
-        settings = _settings_text(_sparse_radar_settings(config))
-        _LOG.info('stage 6 found no agreement with a median of %g targets per road user a '
-                  'frame: trying again with %s', per_frame, settings)
-        try:
-            tracked = track_targets(recording, sparse_config, clock=stage)
-            ground, clutter_note, tracks, hyps, selection = _stages_4_to_6(
-                recording, tracked, sparse_config, stage)
-        except InsufficientDataError as second:
-            if short_drive is not None:
-                raise short_drive from err
-            lead = _stage_6_lead(err, made, recording, config)
+        again = (_without_fast_settings(recording, given, stage)
+                 if fast is not None and err.stage == 'hypotheses' else None)
+        if again is None:
+            return _after_stage_6_failure(err, recording, tracked, config, stage, progress,
+                                          made, sparse_note)
+        config, sparse_note = given, None
+        tracked, (ground, clutter_note, tracks, hyps, selection) = again
+    return _finish(recording, config, stage, progress, tracked, ground, tracks, selection,
+                   clutter_note, sparse_note)
+
+
+def _without_fast_settings(recording: Recording, config: CalibConfig, stage: _StageClock
+                           ) -> tuple[TrackedTargets, tuple[GroundPlane, str | None,
+                                                            tuple[SmoothedTrack, ...],
+                                                            list[Hypothesis],
+                                                            HypothesisSelection]] | None:
+    """Stages 2-6 again with ``config`` as given, where those fitted to a fast vehicle
+    (``fast_vehicle_config``) found no agreement; None where these find none either.
+
+    Why: how fast the vehicle drives is taken over its whole drive, and where it sped
+    between its passes out of the radar's view (a seventy-first probe: 28 m/s out of view,
+    4-12 m/s in it, at 10 Hz) the clusters of two frames were too small for an object list's
+    one target a frame, and six recordings were refused as 'never seen' that calibrate
+    with the defaults."""
+    try:
+        tracked = track_targets(recording, config, clock=stage)
+        if tracked.target_index.size == 0:
+            return None
+        return tracked, _stages_4_to_6(recording, tracked, config, stage)
+    except InsufficientDataError:
+        return None
+
+
+def _after_stage_6_failure(err: InsufficientDataError, recording: Recording,
+                           tracked: TrackedTargets, config: CalibConfig, stage: _StageClock,
+                           progress: ProgressFn | None,
+                           made: list[tuple[GroundPlane, tuple[SmoothedTrack, ...]]],
+                           sparse_note: str | None) -> CalibrationResult:
+    """What follows a failure of stages 4-6: the retries (a sparse radar, the plane of all
+    targets) or the failure with its reasons."""
+    # A radar with about one target per road user a frame (a traffic radar's cluster
+    # list) breaks the paper's clusters of three over three frames into fragments that
+    # never make a track, and stage 6 finds nothing to agree on. Its data are not bad:
+    # looser clustering and shorter tracks calibrate it (an independent 10 Hz radar with
+    # ~1.2 targets on the car: refused with the defaults, 15 cm with these). So on such
+    # a failure, and only then, stages 2-6 run again with them, and a note says so.
+    stage_6 = err.stage == 'hypotheses' and type(err) is InsufficientDataError
+    # said instead of what else was tried, should that fail too
+    short = _short_drive_note(recording, config) if stage_6 else None
+    short_drive = (None if short is None else
+                   InsufficientDataError(err.stage, f'{err.reason.rstrip(".")}. {short}'))
+    sparse = _sparse_radar_config(recording, tracked, config) if stage_6 else None
+    if sparse is None and short_drive is not None:
+        raise short_drive from err
+    levels = (_ground_of_all_targets(recording, tracked, config, stage, made)
+              if sparse is None and stage_6 else None)
+    if levels is not None:
+        level_config, (ground, clutter_note, tracks, hyps, selection), note = levels
+        return _finish(recording, level_config, stage, progress, tracked, ground, tracks,
+                       selection, clutter_note, note)
+    if sparse is None:
+        mirrored = _mirrored_axis(recording, config) if stage_6 else None
+        if mirrored is not None:
+            likely = ('the elevations (z) most likely, as the mirrored fit hangs the '
+                      'radar upside down' if mirrored == 'z' else
+                      'the azimuths (y) most likely')
             raise InsufficientDataError(
-                err.stage, ('' if lead is None else f'{lead} ')
-                + f'{err.reason.rstrip(".")}. The radar reports few targets per road '
-                f'user (a median of {per_frame:g} a frame in its tracks); the settings for '
-                f'such a sparse radar ({settings}) were tried as well and failed too '
-                f'({second.stage}: {second.reason.rstrip(".")}).') from err
-        config = sparse_config
-        sparse_note = ' '.join(filter(None, (sparse_note, (
-            f'The radar reports few targets per road user (a median of '
-            f'{per_frame:g} a frame in its tracks), too few for the paper\'s '
-            'clustering and tracking defaults, which found no passes that agree: '
-            f'the calibration clustered and tracked with {settings}. Put them in '
-            'the parameters file to make them the default for this radar.'))))
-        _LOG.info('%s', sparse_note)
+                err.stage, f'{err.reason.rstrip(".")}. Mirrored, the radar\'s targets do '
+                'follow the vehicle: its point cloud is a mirror image (one axis reversed: '
+                f'{likely}), which no mount can produce. Fix the driver\'s axes (REP-103: '
+                'x forward, y left, z up) and calibrate again.') from err
+        lead = _stage_6_lead(err, made, recording, config)
+        if lead is None:
+            raise err
+        raise InsufficientDataError(err.stage, f'{lead} {err.reason}') from err
+    sparse_config, per_frame = sparse
+    settings = _settings_text(_sparse_radar_settings(config))
+    _LOG.info('stage 6 found no agreement with a median of %g targets per road user a '
+              'frame: trying again with %s', per_frame, settings)
+    try:
+        tracked = track_targets(recording, sparse_config, clock=stage)
+        ground, clutter_note, tracks, hyps, selection = _stages_4_to_6(
+            recording, tracked, sparse_config, stage)
+    except InsufficientDataError as second:
+        if short_drive is not None:
+            raise short_drive from err
+        lead = _stage_6_lead(err, made, recording, config)
+        raise InsufficientDataError(
+            err.stage, ('' if lead is None else f'{lead} ')
+            + f'{err.reason.rstrip(".")}. The radar reports few targets per road '
+            f'user (a median of {per_frame:g} a frame in its tracks); the settings for '
+            f'such a sparse radar ({settings}) were tried as well and failed too '
+            f'({second.stage}: {second.reason.rstrip(".")}).') from err
+    config = sparse_config
+    sparse_note = ' '.join(filter(None, (sparse_note, (
+        f'The radar reports few targets per road user (a median of '
+        f'{per_frame:g} a frame in its tracks), too few for the paper\'s '
+        'clustering and tracking defaults, which found no passes that agree: '
+        f'the calibration clustered and tracked with {settings}. Put them in '
+        'the parameters file to make them the default for this radar.'))))
+    _LOG.info('%s', sparse_note)
     return _finish(recording, config, stage, progress, tracked, ground, tracks, selection,
                    clutter_note, sparse_note)
 
