@@ -369,7 +369,7 @@ def spliced_stamps_ns(vehicle: VehicleTrack) -> I64:
     junction, never beyond the reach of an object-list radar that tracked to 116 m, nor
     turned around: its drives counted as one pass, and 26 of its recordings were refused
     ('none agrees with one from another pass', 'seen in 2 passes', even 'never in view')
-    while the tracks agreed to decimetres; 18 of them calibrate so. A hole the vehicle
+    while the tracks agreed to decimetres; 19 of them calibrate so. A hole the vehicle
     drove across (fixes lost under a bridge) moves it by its speed times the hole, and
     stays one drive."""
     if len(vehicle) < 2:
