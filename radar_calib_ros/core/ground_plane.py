@@ -357,6 +357,8 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
                'apart', tilt)
     centred = points_m[road_users] - points_m[road_users].mean(axis=0)
     width = _width(centred @ _plane_basis(roads.normal)[:, :2])
+    # how far the two planes lie apart is the kept one's uncertainty, capped (see below)
+    sigma = min(tilt, _PLANE_SIGMA_MAX_DEG)
     if (ground.offset_m > -_LEAST_HEIGHT_ABOVE_M >= roads.offset_m
             and width < _ROAD_PLANE_MIN_WIDTH_M):
         # The plane of all moving targets runs level with the radar or above it: no road's.
@@ -373,11 +375,7 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         # theirs is as uncertain as a plane along one road is (a seventieth probe's rain
         # put the first 10-76 deg off, and the tilt was reported at 10 deg, 1 sigma, where
         # the fit was 0.2-1.3 deg off).
-        used = np.flatnonzero(road_users)[roads.used]
-        return (dataclasses.replace(roads, used=used.astype(np.int64),
-                                    tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG,
-                                                       _one_road_sigma_deg(width))),
-                MovingClutter(float(1.0 - road_users.mean()), tilt))
+        sigma = min(sigma, _one_road_sigma_deg(width))
     elif width < _ONE_LANE_WIDTH_M:
         # Road users in one lane only (the vehicle alone on a one-way street): nothing
         # moving shows the turn about that lane, whichever plane is kept, and with no other
@@ -401,11 +399,9 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         # first is clutter's: a sixty-fifth probe's one-lane road, 8.9 deg apart, had the
         # tilt held 15 deg off at a reported 0.6 before one lane was taken above): the
         # difference is the plane's uncertainty, capped as there
-        return dataclasses.replace(ground, tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)
-                                   ), None
+        return dataclasses.replace(ground, tilt_sigma_deg=sigma), None
     used = np.flatnonzero(road_users)[roads.used]
-    return (dataclasses.replace(roads, used=used.astype(np.int64),
-                                tilt_sigma_deg=min(tilt, _PLANE_SIGMA_MAX_DEG)),
+    return (dataclasses.replace(roads, used=used.astype(np.int64), tilt_sigma_deg=sigma),
             MovingClutter(float(1.0 - road_users.mean()), tilt))
 
 
