@@ -658,29 +658,28 @@ def _leap_offset(tracks: tuple[SmoothedTrack, ...], recording: Recording, ground
     for leap in _LEAP_OFFSETS_S:
         shifted = replace(config, sync=replace(config.sync,
                                                time_offset=config.sync.time_offset + leap))
-        selection = _seen_agreeing(tracks, recording, ground, shifted)
-        if selection is None:
-            continue
-        ratio, n_frames = quality.vehicle_detection_ratio(selection.extrinsics, recording,
-                                                          shifted)
-        if n_frames == 0 or ratio >= _LEAP_MIN_DETECTION:
+        if _seen_agreeing(tracks, recording, ground, shifted,
+                          least_seen=_LEAP_MIN_DETECTION) is not None:
             return leap
     return None
 
 
 def _seen_agreeing(tracks: tuple[SmoothedTrack, ...], recording: Recording,
-                   ground: GroundPlane, shifted: CalibConfig) -> HypothesisSelection | None:
+                   ground: GroundPlane, shifted: CalibConfig, *, least_seen: float = 0.0
+                   ) -> HypothesisSelection | None:
     """Stage 6 under ``shifted`` (another clock offset, searched no further) where its
     hypotheses agree and the vehicle is seen where they put it, else None: other road
     users' tracks agree by chance at some offset (seen on a recording whose vehicle never
     came into view), and the vehicle must be seen where that calibration puts it, as for
-    every result."""
+    every result (``quality.min_vehicle_detection`` of the frames that put it in view, and
+    at least ``least_seen`` of them where that is asked; where no frame could be checked,
+    nothing contradicts it)."""
     try:
         _, selection = _hypotheses(tracks, recording, ground, shifted, leaps=False)
-        quality.check_vehicle_detection(selection.extrinsics, recording, shifted)
+        seen = quality.check_vehicle_detection(selection.extrinsics, recording, shifted)
     except InsufficientDataError:
         return None
-    return selection
+    return None if seen < least_seen else selection
 
 
 def _check_pose_stream(recording: Recording, config: CalibConfig) -> None:

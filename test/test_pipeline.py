@@ -133,11 +133,7 @@ def _vehicle_seen_stub(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
         if not seen['vehicle']:
             raise InsufficientDataError('quality', 'does not explain the vehicle')
         return float(seen['ratio'])
-
-    def ratio(extrinsics: Any, recording: Any, config: CalibConfig) -> tuple[float, int]:
-        return float(seen['ratio']), 100
     monkeypatch.setattr(pipeline.quality, 'check_vehicle_detection', detection)
-    monkeypatch.setattr(pipeline.quality, 'vehicle_detection_ratio', ratio)
     return seen
 
 
