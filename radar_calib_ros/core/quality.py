@@ -26,6 +26,7 @@ from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.core import hypotheses, polygon, registration, uncertainty
 from radar_calib_ros.core import vehicle as vehicle_box
 from radar_calib_ros.core._splits import two_piece_rss
+from radar_calib_ros.core.uncertainty import boresight_axes
 from radar_calib_ros.core.vehicle import box_distance, world_to_vehicle
 from radar_calib_ros.errors import InsufficientDataError
 from radar_calib_ros.recording import Recording, interpolate_poses
@@ -351,17 +352,6 @@ def rpy_sigmas_deg(covariance: F64, rotation: F64) -> tuple[float, float, float]
     roll, pitch, yaw = (math.degrees(math.sqrt(max(float(v), 0.0))) if math.isfinite(v)
                         else math.nan for v in variances)
     return roll, pitch, yaw
-
-
-def boresight_axes(rotation: F64) -> F64:
-    """(3, 3) rows: the horizontal direction of the radar's boresight (its x axis in the
-    world), the horizontal direction left of it, and the vertical; world x and y for a
-    radar looking straight down, which has no horizontal boresight."""
-    boresight = np.asarray(rotation, np.float64)[:2, 0]
-    norm = np.linalg.norm(boresight)
-    along = boresight / norm if norm > 1e-9 else np.array([1.0, 0.0])
-    return np.array([[along[0], along[1], 0.0], [-along[1], along[0], 0.0],
-                     [0.0, 0.0, 1.0]])
 
 
 #: Without the final refinement (refine.final false), roll and pitch are stage 4's plane's,

@@ -1014,11 +1014,8 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
         # second-order effects only. Say so in the covariance rather than report the
         # jackknife's agreement on values nothing measured.
         roll_sigma_deg, pitch_sigma_deg = _planar_tilt_sigmas_deg(config)
-        boresight = np.asarray(est.rotation, float)[:2, 0]
-        boresight = boresight / max(float(np.hypot(*boresight)), 1e-12)
-        left = np.array([-boresight[1], boresight[0]])
-        cov7[:2, :2] += (math.radians(roll_sigma_deg) ** 2 * np.outer(boresight, boresight)
-                         + math.radians(pitch_sigma_deg) ** 2 * np.outer(left, left))
+        cov7 = uncertainty.add_roll_pitch(cov7, est.rotation, math.radians(roll_sigma_deg),
+                                          math.radians(pitch_sigma_deg))
         cov7[5, 5] += _PLANAR_HEIGHT_SIGMA_M ** 2
         for moved, sigma_deg in zip(tilted_translations or [],
                                     (roll_sigma_deg, pitch_sigma_deg)):

@@ -235,6 +235,29 @@ def add_tilt(covariance: F64, sigma_rad: float) -> F64:
     return out
 
 
+def boresight_axes(rotation: F64) -> F64:
+    """(3, 3) rows: the horizontal direction of the radar's boresight (its x axis in the
+    world), the horizontal direction left of it, and the vertical; world x and y for a
+    radar looking straight down, which has no horizontal boresight."""
+    boresight = np.asarray(rotation, np.float64)[:2, 0]
+    norm = np.linalg.norm(boresight)
+    along = boresight / norm if norm > 1e-9 else np.array([1.0, 0.0])
+    return np.array([[along[0], along[1], 0.0], [-along[1], along[0], 0.0],
+                     [0.0, 0.0, 1.0]])
+
+
+def add_roll_pitch(covariance: F64, rotation: F64, roll_sigma_rad: float,
+                   pitch_sigma_rad: float) -> F64:
+    """``covariance`` (7x7) with variances added to the rotations about the horizontal
+    boresight (roll) and the horizontal axis left of it (pitch): :func:`add_tilt` with a
+    sigma of each."""
+    along, left, _ = boresight_axes(rotation)
+    out = np.array(covariance, float, copy=True)
+    out[:2, :2] += (roll_sigma_rad ** 2 * np.outer(along[:2], along[:2])
+                    + pitch_sigma_rad ** 2 * np.outer(left[:2], left[:2]))
+    return out
+
+
 def model_term(difference: F64, covariance: F64) -> F64:
     """Covariance of a model difference (a position from another model minus this one,
     ``difference``), capped at ``covariance``'s variance along it: the squared length, or
