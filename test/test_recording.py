@@ -1294,10 +1294,11 @@ def test_a_constant_ins_heading_offset_is_taken_off(offset_deg: float) -> None:
     assert np.median(np.degrees(np.abs(_wrap(course - truth)))) < 0.5
 
 
-def _straight_and_turns_builder(offset_deg: float, seed: int = 0) -> RecordingBuilder:
+def _straight_and_turns_builder(offset_deg: float, seed: int = 0,
+                                heading_noise_deg: float = 0.0) -> RecordingBuilder:
     """Two minutes of driving: 20 s straight legs at 12 m/s joined by 90 deg turns, RTK
     fixes at 10 Hz with 2 cm of noise, Odometry at 50 Hz whose heading is turned by
-    ``offset_deg``."""
+    ``offset_deg`` (and noisy by ``heading_noise_deg``, 1 sigma)."""
     frame = LocalFrame.at(LAT0, LON0)
     rng = np.random.default_rng(seed)
     dt, speed = 0.02, 12.0
@@ -1313,27 +1314,31 @@ def _straight_and_turns_builder(offset_deg: float, seed: int = 0) -> RecordingBu
     _one_frame(builder)
     noisy = frame.local_to_geodetic(np.column_stack(
         [xy + rng.normal(0.0, 0.02, xy.shape), np.zeros_like(t)]))
+    heading_noise = rng.normal(0.0, math.radians(heading_noise_deg), t.size)
     for i in range(t.size):
         stamp = T0 + int(round(t[i] * 1e9))
         if i % 5 == 0:  # fixes at 10 Hz
             builder.add_fix(FixSample(stamp, noisy[0][i], noisy[1][i], noisy[2][i], 2,
                                       (0.02, 0.03)))
-        builder.add_odometry(_odom(stamp, yaw_true[i] + math.radians(offset_deg), speed,
-                                   rate[i]))
+        builder.add_odometry(_odom(stamp, yaw_true[i] + math.radians(offset_deg)
+                                   + heading_noise[i], speed, rate[i]))
     return builder
 
 
-@pytest.mark.parametrize('offset_deg', [0.0, 0.4, -0.8])
+@pytest.mark.parametrize('offset_deg, noise_deg', [(0.0, 0.0), (0.4, 0.0), (-0.8, 0.0),
+                                                   (0.0, 0.5), (0.5, 0.5)])
 def test_a_fraction_of_a_degree_of_ins_heading_offset_is_taken_off_on_straights(
-        offset_deg: float) -> None:
+        offset_deg: float, noise_deg: float) -> None:
     """On straight stretches an RTK course over ground is the heading to a few hundredths
     of a degree, so an INS turned by less than the degree that turns need is still found
     (a fifteenth probe: 0.7-1.0 deg left alone put the radar 0.2-0.4 m off across its
     boresight, outside 2 sigma); an aligned INS is left alone, and a few tenths are taken
-    off without a note."""
+    off without a note. An INS heading with 0.5 deg of noise is judged so too (seventy-
+    second and seventy-third probes: its sample-to-sample turn read every sample as turning,
+    and 0.3-1.0 deg went into the radar's yaw)."""
     from radar_calib_ros.pipeline import _data_notes
 
-    rec = _straight_and_turns_builder(offset_deg).build()
+    rec = _straight_and_turns_builder(offset_deg, heading_noise_deg=noise_deg).build()
     found = rec.counters.get('odometry_heading_offset_cdeg', 0) / 100.0
     assert found == pytest.approx(offset_deg, abs=0.05)
     legs = np.abs(rec.vehicle.yaw_rate_rps) < 0.01
