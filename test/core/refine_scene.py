@@ -44,6 +44,10 @@ GEOMETRIES = {
     'divided': [('line', 130, 5.5, 40, 5.5), ('line', 40, -5.5, 130, -5.5),
                 ('line', 130, 9.0, 40, 9.0), ('line', 40, -9.0, 130, -9.0),
                 ('line', 130, 5.5, 40, 5.5), ('line', 40, -5.5, 130, -5.5)],
+    # one straight road through the view at 45 deg to the boresight, two lanes both ways:
+    # each aspect is seen from one bearing per direction
+    'oblique': [('line', 15, -35, 75, 25), ('line', 72, 28, 12, -32),
+                ('line', 18, -38, 78, 22), ('line', 75, 25, 15, -35)],
     # mid-block: straight drives along the road the radar looks down (head-on, tail-on),
     # then two drives across its view (the last two passes)
     'mid_block': [('line', 90, 3.5, 12, 3.5), ('line', 12, -3.5, 90, -3.5),

@@ -2247,3 +2247,52 @@ def test_the_clock_sigma_is_no_wider_than_the_range_searched() -> None:
     small[6, :] /= 1e3
     small[:, 6] /= 1e3
     assert refine._clock_sigma_capped(small, 0.25) is small
+
+
+def _long_vehicle_config() -> CalibConfig:
+    base = CalibConfig()
+    return dataclasses.replace(base, vehicle=dataclasses.replace(
+        base.vehicle, length=12.0, width=2.55, height=3.2, rear_overhang=3.0))
+
+
+def _fit_at(est: Extrinsics, fitted: np.ndarray, cost: float = 2.0) -> Any:
+    from radar_calib_ros.types import Refinement
+    return Refinement(est, np.eye(7), int(fitted.size), 4, diagnostics={
+        'cost_per_target': cost, 'residuals': {'target_index': fitted}})
+
+
+def test_a_long_vehicle_slid_along_its_road_is_searched_back_by_the_gate() -> None:
+    """A bus's box slid 4 m along the road it drove keeps a face's targets and loses the
+    rest: the gate, sliding it back along the road, finds the stretch where most of the
+    vehicle lies and starts there. At the truth it finds nothing better."""
+    config = _long_vehicle_config()
+    scene = make_scene(3, model='skin', geometry='oblique', config=config,
+                       initial_error=(0.0, 0.0, 0.04))
+    truth = scene.truth
+    road = np.array([1.0, 1.0]) / math.sqrt(2.0)       # 45 deg left of the boresight
+    yaw = math.atan2(truth.rotation[1, 0], truth.rotation[0, 0])
+    c, s = math.cos(yaw), math.sin(yaw)
+    along = np.array([c * road[0] - s * road[1], s * road[0] + c * road[1], 0.0])
+    fitted = scene.tracked.target_index[scene.tracked.track_id >= 0]
+    assert refine._rescan_along_the_road(_fit_at(truth, fitted), scene.recording,
+                                         scene.tracked, config) is None
+    for shift in (4.0, -4.0):
+        slid = Extrinsics(truth.rotation, truth.translation_m + shift * along,
+                          truth.time_offset_s)
+        start = refine._rescan_along_the_road(_fit_at(slid, fitted), scene.recording,
+                                              scene.tracked, config)
+        assert start is not None
+        back = start.translation_m - truth.translation_m
+        assert abs(back @ along) < 1.0 and np.linalg.norm(back - (back @ along) * along) < 1e-9
+        assert start.time_offset_s == truth.time_offset_s
+
+
+def test_a_fit_from_along_the_road_is_kept_only_where_it_explains_far_more_targets() -> None:
+    """More than 1.1 times the targets at no more than 1.05 times the cost per target."""
+    est = Extrinsics(np.eye(3), np.zeros(3))
+    first = _fit_at(est, np.arange(3778), 2.03)
+    assert refine._road_refit_better(_fit_at(est, np.arange(8352), 2.08), first)
+    assert refine._road_refit_better(_fit_at(est, np.arange(5514), 2.56),
+                                     _fit_at(est, np.arange(3157), 3.36))
+    assert not refine._road_refit_better(_fit_at(est, np.arange(4000), 1.9), first)
+    assert not refine._road_refit_better(_fit_at(est, np.arange(8352), 2.2), first)
