@@ -1712,13 +1712,15 @@ def _stages_4_to_6(recording: Recording, tracked: TrackedTargets, config: CalibC
 
 def _stage_6_lead(err: InsufficientDataError,
                   made: list[tuple[GroundPlane, tuple[SmoothedTrack, ...]]],
-                  recording: Recording, config: CalibConfig) -> str | None:
+                  recording: Recording, config: CalibConfig, *,
+                  sparse_per_frame: float | None = None) -> str | None:
     """``_never_in_view_lead`` for a failure of stage 6 on the tracks ``_stages_4_to_6``
     made, else None."""
     if err.stage != 'hypotheses' or type(err) is not InsufficientDataError or not made:
         return None
     ground, tracks = made[0]
-    return _never_in_view_lead(err.reason, tracks, ground, recording, config)
+    return _never_in_view_lead(err.reason, tracks, ground, recording, config,
+                               sparse_per_frame=sparse_per_frame)
 
 
 #: Clock offsets [s] on top of the given one at which the vehicle must have no company
@@ -1729,10 +1731,14 @@ _NEVER_IN_VIEW_CLOCK_S = 1.0
 _NEVER_IN_VIEW_CLOCK_STEP_S = 0.25
 #: Fewest passes through the view (under the best of the hypotheses) the claim is made on.
 _NEVER_IN_VIEW_MIN_PASSES = 3
+#: Below this many targets a road user a frame (median in its tracks) the vehicle's tracks
+#: cannot keep it company: one track each.
+_SPARSE_COMPANY_TARGETS = 2.0
 
 
 def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: GroundPlane,
-                        recording: Recording, config: CalibConfig) -> str | None:
+                        recording: Recording, config: CalibConfig, *,
+                        sparse_per_frame: float | None = None) -> str | None:
     """The sentence that leads a failure (``reason``) where the vehicle was most likely
     never in the radar's view, with what shows it (``hypotheses.view_company``), else None.
 
@@ -1745,7 +1751,8 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
     where the vehicle is seen, its own tracks do at the right one. Not said where the
     reason or the clock notes already name a sync.time_offset to set (checked first, as
     the search costs up to nine hypothesis generations): the vehicle was in view, on
-    another clock (``_clock_remedy_named``).
+    another clock (``_clock_remedy_named``). ``sparse_per_frame``: the median targets a road
+    user a frame, where the sparse radar's settings were tried and failed too.
     """
     if _clock_remedy_named(reason, _clock_notes(recording, config)):
         return None
@@ -1773,6 +1780,19 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
         # car park: in view for 240 s, 33 808 of its targets, told 'never in the radar's
         # view' for what was two passes where three are needed); the stages' reason stands
         return None
+    if sparse_per_frame is not None and sparse_per_frame < _SPARSE_COMPANY_TARGETS:
+        # With a target or two a road user a frame, each road user is one track: the
+        # vehicle's own keep it no company however well the radar sees it (a seventy-first
+        # probe's low-resolution radars on straight roads, 97-215 frames of the car a pass,
+        # were told it was never in view).
+        return (f'No track follows the calibration vehicle on most of its passes: of the '
+                f'{n_hyps} tracks that fit a stretch of its drive, none, taken for the '
+                f'vehicle\'s, has tracks moving with it on more than {best.met} of the '
+                f'{best.in_view} passes it then makes through the view. With '
+                f'{sparse_per_frame:g} target{"" if sparse_per_frame == 1 else "s"} a road '
+                'user a frame, each is one track, which '
+                'keeps no company even where the radar sees it (or the vehicle was never in '
+                'the radar\'s view). In detail:')
     travel = _frame_travel(recording)[0]
     if travel > _FRAME_TRAVEL_M:
         # A vehicle that drives metres between frames breaks into short tracks whose
@@ -2008,7 +2028,7 @@ def _after_stage_6_failure(err: InsufficientDataError, recording: Recording,
     except InsufficientDataError as second:
         if short_drive is not None:
             raise short_drive from err
-        lead = _stage_6_lead(err, made, recording, config)
+        lead = _stage_6_lead(err, made, recording, config, sparse_per_frame=per_frame)
         raise InsufficientDataError(
             err.stage, ('' if lead is None else f'{lead} ')
             + f'{err.reason.rstrip(".")}. The radar reports few targets per road '

@@ -1236,6 +1236,14 @@ def test_a_vehicle_never_in_view_is_said_first(tmp_path: Path,
     assert lead is not None and lead.startswith(
         'No track follows the calibration vehicle on most of its passes')
     assert 'At 2.2 m between radar frames' in lead and 'never in the radar' in lead
+    # a radar with a target a road user a frame makes one track of each: no company either
+    sparse = pipeline._never_in_view_lead('', tracks, ground, recording, config,
+                                          sparse_per_frame=1.0)
+    assert sparse is not None and sparse.startswith(
+        'No track follows the calibration vehicle on most of its passes')
+    assert 'With 1 target a road user a frame, each is one track' in sparse
+    assert pipeline._never_in_view_lead('', tracks, ground, recording, config,
+                                        sparse_per_frame=3.0) == lead
 
 
 def test_a_seen_vehicle_is_not_said_never_in_view(drive: Any) -> None:
