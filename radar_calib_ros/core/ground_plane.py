@@ -398,7 +398,15 @@ def fit_road_plane(points_m: F64, time_s: F64, track_id: np.ndarray,
         # which of the two is the road's the data cannot say (with no other traffic the
         # first is clutter's: a sixty-fifth probe's one-lane road, 8.9 deg apart, had the
         # tilt held 15 deg off at a reported 0.6 before one lane was taken above): the
-        # difference is the plane's uncertainty, capped as there
+        # difference is the plane's uncertainty, capped as there. Where the first lies
+        # along that one road too (its densest targets are theirs), the two are one line's
+        # planes, as uncertain about it as such a plane is, however near each other: a
+        # seventy-first probe's drives all on one path beside moving false alarms, the
+        # planes 1.8 deg apart and both 8 deg off, the roll reported at 1.9 deg, 8.7 off.
+        along = _width((points_m[ground.used] - points_m[ground.used].mean(axis=0))
+                       @ _plane_basis(ground.normal)[:, :2])
+        if along < _ROAD_PLANE_MIN_WIDTH_M:
+            sigma = max(sigma, min(_one_road_sigma_deg(along), _PLANE_SIGMA_MAX_DEG))
         return dataclasses.replace(ground, tilt_sigma_deg=sigma), None
     used = np.flatnonzero(road_users)[roads.used]
     return (dataclasses.replace(roads, used=used.astype(np.int64), tilt_sigma_deg=sigma),

@@ -260,11 +260,13 @@ def test_road_users_along_one_road_do_not_replace_the_plane() -> None:
     np.testing.assert_array_equal(plane.normal, all_moving.normal)
 
 
-def _lanes_with_clutter(lanes_m: tuple[float, ...], clutter_deg: float | None
+def _lanes_with_clutter(lanes_m: tuple[float, ...], clutter_deg: float | None,
+                        clutter_half_width_m: float = 25.0
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The vehicle alone driving lanes at these offsets across the road (x along it), each
     way in turn at 10 m/s, 15 Hz, 8 targets a frame inside its footprint; plus, where given,
-    6000 untracked moving targets over the view on a plane ``clutter_deg`` off about x."""
+    6000 untracked moving targets over the view (``clutter_half_width_m`` either side of the
+    road) on a plane ``clutter_deg`` off about x."""
     rng = np.random.default_rng(0)
     points, times, tracks = [], [], []
     for k in range(6):
@@ -279,7 +281,8 @@ def _lanes_with_clutter(lanes_m: tuple[float, ...], clutter_deg: float | None
         tracks.append(np.full(tt.size, k))
     if clutter_deg is not None:
         n = 6000
-        clutter = np.column_stack([rng.uniform(10.0, 70.0, n), rng.uniform(-25.0, 25.0, n),
+        clutter = np.column_stack([rng.uniform(10.0, 70.0, n),
+                                   rng.uniform(-clutter_half_width_m, clutter_half_width_m, n),
                                    np.zeros(n)])
         clutter[:, 2] = (math.tan(math.radians(clutter_deg)) * clutter[:, 1] - 5.0
                          + rng.normal(0, 0.1, n))
@@ -293,8 +296,8 @@ def test_a_road_plane_the_road_users_cannot_show_carries_an_uncertainty() -> Non
     """Road users in one lane only (the vehicle alone on a one-way street): nothing moving
     shows the turn about that lane, so the plane kept carries the largest uncertainty, clutter
     or none. Three lanes with moving clutter on a plane 6 deg off: the two planes stage 4
-    cannot tell apart carry their difference; without the clutter they agree and the plane
-    carries none."""
+    cannot tell apart carry their difference, or a plane along one road's uncertainty where
+    that is more; without the clutter they agree and the plane carries none."""
     cap = ground_plane._PLANE_SIGMA_MAX_DEG
     for clutter_deg in (None, 6.0):
         plane, moving_clutter = ground_plane.fit_road_plane(
@@ -307,9 +310,32 @@ def test_a_road_plane_the_road_users_cannot_show_carries_an_uncertainty() -> Non
     plane, moving_clutter = ground_plane.fit_road_plane(points, times, tracks, GroundConfig())
     assert moving_clutter is None                    # kept, not replaced
     roads = fit_ground_plane(points[tracks >= 0], GroundConfig())
-    assert plane.tilt_sigma_deg == pytest.approx(_angle_deg(plane.normal, roads.normal),
-                                                 abs=1e-6)
+    # the kept plane's densest targets are the vehicle's lanes: it is as uncertain about
+    # their road as a plane along one road is, where that is more than the difference
+    used = points[plane.used] - points[plane.used].mean(axis=0)
+    width = ground_plane._width(used @ ground_plane._plane_basis(plane.normal)[:, :2])
+    assert plane.tilt_sigma_deg == pytest.approx(
+        max(_angle_deg(plane.normal, roads.normal), ground_plane._one_road_sigma_deg(width)),
+        abs=1e-6)
     assert 1.5 < plane.tilt_sigma_deg < cap
+
+
+def test_two_planes_along_one_road_are_as_uncertain_as_one_roads() -> None:
+    """Moving false alarms along the road itself (not across the view): the plane of all
+    moving targets lies along that road too, and its difference from the road users' says
+    nothing of either; both turn about the road as a plane of targets along one road does
+    (a seventy-first probe: 1.8 deg apart, both 8 deg off, the roll reported at 1.9)."""
+    points, times, tracks = _lanes_with_clutter((-3.5, 0.0, 3.5), 6.0,
+                                                clutter_half_width_m=3.0)
+    plane, moving_clutter = ground_plane.fit_road_plane(points, times, tracks, GroundConfig())
+    assert moving_clutter is None
+    roads = fit_ground_plane(points[tracks >= 0], GroundConfig())
+    apart = _angle_deg(plane.normal, roads.normal)
+    used = points[plane.used] - points[plane.used].mean(axis=0)
+    width = ground_plane._width(used @ ground_plane._plane_basis(plane.normal)[:, :2])
+    assert width < ground_plane._ROAD_PLANE_MIN_WIDTH_M
+    assert plane.tilt_sigma_deg == pytest.approx(ground_plane._one_road_sigma_deg(width))
+    assert plane.tilt_sigma_deg > max(apart, 1.5)
 
 
 def _pedestrians(seed: int, n: int = 60, beside_m: float = -6.0
