@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from radar_calib_ros import metrics
-from radar_calib_ros.core import quality, refine, refine_covariance
+from radar_calib_ros.core import quality, refine, refine_covariance, velocity_folding
 from radar_calib_ros.config import CalibConfig
 from radar_calib_ros.pipeline import (VEHICLE_BOX_PARAMETERS, azimuth_corrected,
                                       fast_vehicle_config, track_targets)
@@ -840,13 +840,39 @@ def evaluate_recording(recording: Recording, calibration: Mapping[str, Any],
     if fast is not None:
         config = fast[0]
     tracked = track_targets(recording, config)
+    recording, unfolded = _unfolded(recording, tracked, calibration, config)
     evaluation = evaluate_tracked(recording, tracked, calibration, config, truth=truth,
                                   range_edges_m=range_edges_m)
     if fast is not None:
         evaluation = replace(evaluation, notes=(*evaluation.notes, fast[1]))
+    if unfolded is not None:
+        evaluation = replace(evaluation, notes=(*evaluation.notes, unfolded))
     if not agreement:
         return evaluation
     return replace(evaluation, agreement=check_agreement(evaluation, config))
+
+
+def _unfolded(recording: Recording, tracked: TrackedTargets, calibration: Mapping[str, Any],
+              config: CalibConfig) -> tuple[Recording, str | None]:
+    """The recording with the vehicle's radial velocities unfolded where the radar folds
+    them (``core/velocity_folding.py``, judged at the calibration under test), and the note
+    that says so; as it is, and None, where they do not fold.
+
+    Why: ``calibrate`` unfolds them, and the fit that judges the calibration here followed
+    folded ones away (a seventy-third probe's radar folding at +-10 m/s: 'cannot tell', the
+    fit 23-34 m and 26-35 deg off, on recordings that calibrate to centimetres)."""
+    extrinsics = calibration_extrinsics(calibration, recording.frame, config)
+    folding = velocity_folding.detect_folding(extrinsics, recording, tracked.target_index,
+                                              config)
+    if folding is None:
+        return recording, None
+    recording, folding = velocity_folding.unfold_radial_velocities(
+        recording, extrinsics, tracked.target_index, folding, config)
+    return recording, (
+        f'The radar\'s radial velocities fold over at +-{folding.period_mps / 2:.1f} m/s: near '
+        f'the vehicle {folding.n_folded} of {folding.n_near} targets were off its motion by '
+        f'that width, and {folding.n_unfolded} were unfolded by its known motion at the '
+        'calibration before the fit that checks it')
 
 
 # --- output -------------------------------------------------------------------------------
