@@ -93,9 +93,9 @@ from radar_calib_ros.core.refine_clock import (_clock_drift, _clock_step, _mid_r
                                                _pass_time_offsets, _radar_clock_s,
                                                _rescan_time_offset, _scan_time_offset)
 from radar_calib_ros.core.refine_covariance import (
-    _VELOCITY_SUSPECTS, _check_not_diverged, _Diverged, _halves_disagreement, _halves_shift,
-    _height_difference_shift, _height_shift, _jackknife_groups, _lane_separation, _line_axis,
-    _pose_block, _position_spread, _range_bands, _start_term, _turn_between_passes,
+    _VELOCITY_SUSPECTS, _check_not_diverged, _Diverged, _halves_disagreement, _halves_geometry,
+    _halves_shift, _height_difference_shift, _height_shift, _jackknife_groups, _lane_separation,
+    _line_axis, _pose_block, _position_spread, _range_bands, _start_term, _turn_between_passes,
     _yaw_rate_shift, _yaw_step_between_passes, along_boresight_share, start_error_m)
 from radar_calib_ros.core.refine_diagnostics import _diagnostics
 from radar_calib_ros.core.refine_model import (
@@ -1143,7 +1143,7 @@ def _refine(initial: Extrinsics, recording: Recording, tracked: TrackedTargets,
     spread = _position_spread(data, poses, est.time_offset_s)
     cov7 = uncertainty.add_tilt(cov7, sigma_v / spread)
     cov7[2, 2] += (sigma_h / spread) ** 2
-    halves = _halves_disagreement(halves_shift, cov7)
+    halves = _halves_disagreement(halves_shift, cov7, _halves_geometry(pc, jp.T @ jp))
     if halves is not None and halves_shift is not None:
         # The result is a blend of two different poses: either could be the radar's, so the
         # whole difference joins the covariance (a fourth probe's pole turned 1.5 deg halfway

@@ -1153,6 +1153,23 @@ def test_halves_that_disagree_beyond_the_covariance_are_flagged() -> None:
     assert refine_covariance._halves_disagreement(shift, tight) == pytest.approx((1.0, 0.5))
     assert refine_covariance._halves_disagreement(shift, loose) is None
     assert refine_covariance._halves_disagreement(None, tight) is None
+    # halves that see alike (each half's own information half the whole's) are judged as
+    # before; halves on different roads, each seeing little of the other's, are not parted
+    # by 1 deg (a seventy-third probe's four- and five-pass drives: 17-31 -> 0.4-0.9)
+    whole = np.diag([1e-6] * 3 + [1e-4] * 3 + [1e-8])
+    alike = (4.0 * whole, whole)
+    apart = (100.0 * whole, whole)
+    assert refine_covariance._halves_disagreement(shift, tight, alike) == pytest.approx(
+        (1.0, 0.5))
+    assert refine_covariance._halves_disagreement(shift, tight, apart) is None
+    # from the passes' Hessians: four passes alike give four times the whole's
+    passes = uncertainty.PassCovariance(np.eye(7), np.zeros((4, 7)), 4, 1.0,
+                                        np.stack([np.eye(7)] * 4), np.zeros((4, 7)))
+    apart_m, whole_m = refine_covariance._halves_geometry(passes, np.zeros((7, 7)))
+    np.testing.assert_allclose(apart_m, 4.0 * whole_m)
+    np.testing.assert_allclose(whole_m, 0.25 * np.eye(7))
+    assert refine_covariance._halves_geometry(dataclasses.replace(
+        passes, n_passes=3, hessians=passes.hessians[:3]), np.zeros((7, 7))) is None
 
 
 def test_a_radar_turned_halfway_through_is_said_and_covered(
