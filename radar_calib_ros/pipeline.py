@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from radar_calib_ros.config import CalibConfig, RadarConfig
+from radar_calib_ros.config import CalibConfig, RadarConfig, VehicleConfig
 from radar_calib_ros.core import associate, cluster, ground_plane, hypotheses, moving, polygon
 from radar_calib_ros.core import quality, refine, refine_noise, track, uncertainty
 from radar_calib_ros.core import velocity_folding
@@ -824,12 +824,44 @@ def _odometry_late_note(recording: Recording, fitted_offset_s: float) -> str | N
             'radar\'s against the Odometry\'s stamps. Check how each is stamped.')
 
 
+def _degraded_fixes_note(recording: Recording) -> str | None:
+    """A note where RTK fixes that had lost the solution were left out, else None."""
+    counters = recording.counters
+    dropped, fixes = counters.get('fixes_degraded_dropped', 0), counters.get('fixes', 0)
+    if not dropped or not fixes or recording.fix_grade != 'rtk':
+        return None
+    stretches = counters.get('fixes_unaugmented_stretches', 0)
+    longest_s = counters.get('fixes_unaugmented_longest_ms', 0) / 1000.0
+    where = (f'; standalone (NavSatFix status 0) in {stretches} stretch'
+             f'{"es" if stretches != 1 else ""}, the longest {longest_s:.0f} s'
+             if counters.get('fixes_unaugmented', 0) else '')
+    return (f'{dropped} of the vehicle\'s {fixes} fixes ({100 * dropped / fixes:.0f} %) '
+            'had lost the RTK solution (status 0 or 1, or a declared accuracy far below '
+            f'the rest){where}: those poses, decimetres to metres off, were left out '
+            'with the radar frames they would have placed. Check the correction link, or '
+            'drive those passes again.')
+
+
+#: A failure names the fixes left out for a lost RTK solution from this share of them: the
+#: passes driven then are gone (a seventy-second probe's 58 % of float fixes, flagged
+#: honestly, left three passes and the failure said the vehicle was never in view).
+_DEGRADED_FAILURE_SHARE = 0.1
+
+
 def _fix_grade_failure_note(recording: Recording) -> list[str]:
     """For a failure: the vehicle's fixes are not RTK, named with their error, which moves
     every pass's track of the vehicle by that much (a probe's standalone-GNSS drive failed
-    with 'no consistent track' alone, as if the radar or the drives were at fault)."""
+    with 'no consistent track' alone, as if the radar or the drives were at fault); or
+    RTK fixes, a share of which were left out for a lost solution."""
     grade = recording.fix_grade
-    if grade == 'rtk' or not recording.counters.get('fixes'):
+    if grade == 'rtk':
+        counters = recording.counters
+        degraded = _degraded_fixes_note(recording)
+        if degraded is None or (counters.get('fixes_degraded_dropped', 0)
+                                < _DEGRADED_FAILURE_SHARE * counters.get('fixes', 0)):
+            return []
+        return [degraded]
+    if not recording.counters.get('fixes'):
         return []
     what = 'standalone GNSS (NavSatFix status 0)' if grade == 'standalone' else (
         'SBAS, DGPS or RTK float (NavSatFix status 1)')
@@ -842,6 +874,22 @@ def _fix_grade_failure_note(recording: Recording) -> list[str]:
 #: Below this vehicle.ref_height [m] the pose point is an axle's or the ground's, not a
 #: roof antenna's (a car's roof is 1.4-1.6 m up).
 _ANTENNA_MIN_HEIGHT_M = 1.0
+
+
+#: 1-sigma [m] of the height above vehicle.ref_height of fixes seen off the Odometry's
+#: point (``fix_lever_arm_*``) where ref_height is an axle's: a roof antenna lies 1.0-1.3 m
+#: above one (a seventy-second probe's 1.1 m: the radar 0.9-1.1 m high at 2.4-2.8 sigma).
+_LEVER_ARM_HEIGHT_SIGMA_M = 0.75
+
+
+def _lever_arm_height_sigma_m(recording: Recording, vehicle: VehicleConfig) -> float:
+    """How uncertain the height of the fixes' point above the road is beyond
+    vehicle.ref_height [m]: ``_LEVER_ARM_HEIGHT_SIGMA_M`` where the fixes describe a point
+    off the Odometry's (a lever arm) and ref_height is below an antenna's, else 0."""
+    if (recording.counters.get('fix_lever_arm_forward_cm') is None
+            or vehicle.ref_height >= _ANTENNA_MIN_HEIGHT_M):
+        return 0.0
+    return _LEVER_ARM_HEIGHT_SIGMA_M
 
 
 def _antenna_height_note(recording: Recording, config: CalibConfig) -> str | None:
@@ -1150,7 +1198,8 @@ def _planar_note(constant_mdeg: int | None, radar: RadarConfig) -> str:
 
 def _data_notes(recording: Recording, corrections: list[str],
                 fitted_offset_s: float | None = None,
-                radar: RadarConfig = RadarConfig()) -> list[str]:
+                radar: RadarConfig = RadarConfig(),
+                vehicle: VehicleConfig | None = None) -> list[str]:
     """What the calibration had to work around in the data, for the user to fix at the
     source: ``corrections`` made on the way (a flipped radial-velocity sign, folded
     velocities), an Odometry twist that did not describe the vehicle's motion (or its
@@ -1391,18 +1440,9 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'motion: an RTK fix lost for RTK float and regained, while '
                      f'{"the pose" if odometry else "the status and the"} covariance still '
                      f'said RTK fixed? {what[0].upper()}{what[1:]}. {fix}')
-    if recording.counters.get('fixes_degraded_dropped', 0) and recording.fix_grade == 'rtk':
-        dropped = recording.counters['fixes_degraded_dropped']
-        stretches = recording.counters.get('fixes_unaugmented_stretches', 0)
-        longest_s = recording.counters.get('fixes_unaugmented_longest_ms', 0) / 1000.0
-        where = (f'; standalone (NavSatFix status 0) in {stretches} stretch'
-                 f'{"es" if stretches != 1 else ""}, the longest {longest_s:.0f} s'
-                 if recording.counters.get('fixes_unaugmented', 0) else '')
-        notes.append(f'{dropped} of the vehicle\'s {fixes} fixes ({100 * dropped / fixes:.0f} %) '
-                     'had lost the RTK solution (status 0 or 1, or a declared accuracy far below '
-                     f'the rest){where}: those poses, decimetres to metres off, were left out '
-                     'with the radar frames they would have placed. Check the correction link, or '
-                     'drive those passes again.')
+    degraded = _degraded_fixes_note(recording)
+    if degraded is not None:
+        notes.append(degraded)
     lag_ms = recording.counters.get('fix_lag_ms')
     late = (_odometry_late_note(recording, fitted_offset_s) if fitted_offset_s is not None
             else None)
@@ -1424,17 +1464,27 @@ def _data_notes(recording: Recording, corrections: list[str],
     forward_cm = counters.get('fix_lever_arm_forward_cm')
     if forward_cm is not None:
         left_cm = counters.get('fix_lever_arm_left_cm', 0)
-        notes.append(f'The NavSatFix positions describe a point {abs(forward_cm) / 100:.2f} m '
-                     f'{"ahead of" if forward_cm >= 0 else "behind"} and {abs(left_cm) / 100:.2f} '
-                     f'm {"left" if left_cm >= 0 else "right"} of the Odometry\'s (seen in every '
-                     'turn: a GNSS antenna\'s lever arm?). The calibration places the vehicle '
-                     'by the fixes (the Odometry\'s twist moved to their point), so vehicle.* '
-                     'must describe the box around the fixes\' point '
-                     '(overhangs from it, vehicle.ref_height its height above the road); drawn '
-                     'around the Odometry\'s point, the radar\'s altitude is off by the '
-                     'antenna\'s height (and its position by up to the lever arm), which the '
-                     'data cannot show. Fix the parameters, or publish the fixes at the reference '
-                     'point, and calibrate again.')
+        seen = (f'The NavSatFix positions describe a point {abs(forward_cm) / 100:.2f} m '
+                f'{"ahead of" if forward_cm >= 0 else "behind"} and {abs(left_cm) / 100:.2f} '
+                f'm {"left" if left_cm >= 0 else "right"} of the Odometry\'s (seen in every '
+                'turn: a GNSS antenna\'s lever arm?). The calibration places the vehicle '
+                'by the fixes (the Odometry\'s twist moved to their point), so vehicle.* '
+                'must describe the box around the fixes\' point '
+                '(overhangs from it, vehicle.ref_height its height above the road)')
+        if vehicle is not None and _lever_arm_height_sigma_m(recording, vehicle) == 0.0:
+            # the parameters already put that point at an antenna's height: said as done
+            # (a seventy-second probe, having moved them there, was told the same 'fix the
+            # parameters' and could not tell the fix had worked)
+            notes.append(f'{seen}: vehicle.ref_height ({vehicle.ref_height:.2f} m) puts it at '
+                         'an antenna\'s height, as that needs; check that rear_overhang is '
+                         'measured to it too.')
+        else:
+            notes.append(f'{seen}; drawn around the Odometry\'s point, the radar\'s altitude '
+                         'is off by the antenna\'s height (and its position by up to the lever '
+                         'arm), which the data cannot show: the altitude\'s uncertainty '
+                         f'includes {_LEVER_ARM_HEIGHT_SIGMA_M:g} m (1 sigma) for it. Fix the '
+                         'parameters, or publish the fixes at the reference point, and '
+                         'calibrate again.')
     odometry = max(counters.get('odometry', 0), 1)
     notes += [_dropped(counters.get('radar_messages_malformed', 0), 'radar message',
                        lambda n: 'could not be decoded (truncated, malformed, or without a '
@@ -1755,6 +1805,10 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
     user a frame, where the sparse radar's settings were tried and failed too.
     """
     if _clock_remedy_named(reason, _clock_notes(recording, config)):
+        return None
+    if _fix_grade_failure_note(recording) and recording.fix_grade == 'rtk':
+        # a share of the fixes left out for a lost RTK solution took the passes driven then
+        # with them: that is said instead (``_fix_grade_failure_note``)
         return None
     steps = int(round(_NEVER_IN_VIEW_CLOCK_S / _NEVER_IN_VIEW_CLOCK_STEP_S))
     first: tuple[int, list[hypotheses.ViewCompany]] | None = None
@@ -2280,6 +2334,15 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
                         corrections.append(_azimuth_bias_refuted_note(
                             bias, again.n_targets, refinement.n_targets))
                     _LOG.warning('%s', corrections[-1])
+        lever = _lever_arm_height_sigma_m(recording, config.vehicle)
+        if lever > 0.0:
+            # the fixes' height above the road, which the altitude rests on one to one, is
+            # unknown by an antenna's height (the data notes say why)
+            covariance = np.array(refinement.covariance, float, copy=True)
+            covariance[5, 5] += lever ** 2
+            refinement = replace(refinement, covariance=covariance, diagnostics={
+                **refinement.diagnostics,
+                **uncertainty.sigma_summary(covariance, refinement.extrinsics.rotation)})
         current = refinement.extrinsics
         stage_extrinsics['refine'] = current
         plane = refinement.diagnostics.get('plane_moved')
@@ -2383,7 +2446,7 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
             report.extra['radial_velocity_fold_period_mps'] = folding.period_mps
         notes = _data_notes(recording, corrections,
                             current.time_offset_s if refinement is not None else None,
-                            config.radar) + _clock_notes(recording, config)
+                            config.radar, config.vehicle) + _clock_notes(recording, config)
         antenna = _antenna_height_note(recording, config)
         if antenna is not None:
             notes.append(antenna)

@@ -174,6 +174,17 @@ def test_fixes_of_another_point_than_the_odometrys_are_named_not_taken_for_a_lag
     found_m = abs(rec.counters['fix_lever_arm_forward_cm']) / 100
     assert f'describe a point {found_m:.2f} m {ahead}' in notes
     assert 'lever arm' in notes
+    # vehicle.* at an axle's height: the altitude's uncertainty counts the antenna's height
+    # (a seventy-second probe: 1.1 m high at 2.4-2.8 sigma); at an antenna's, that is done
+    from radar_calib_ros.pipeline import _LEVER_ARM_HEIGHT_SIGMA_M, _lever_arm_height_sigma_m
+    axle = CalibConfig().vehicle
+    roof = dataclasses.replace(axle, ref_height=1.45)
+    assert _lever_arm_height_sigma_m(rec, axle) == _LEVER_ARM_HEIGHT_SIGMA_M > 0.5
+    assert _lever_arm_height_sigma_m(rec, roof) == 0.0
+    told = ' '.join(_data_notes(rec, [], vehicle=axle))
+    assert 'Fix the parameters' in told and 'uncertainty includes 0.75 m' in told
+    done = ' '.join(_data_notes(rec, [], vehicle=roof))
+    assert 'Fix the parameters' not in done and 'ref_height (1.45 m) puts it at an antenna' in done
 
 
 @pytest.mark.parametrize('lag_ms', [0, 100])
@@ -844,6 +855,13 @@ def test_a_drive_mostly_in_rtk_float_rests_on_its_rtk_fixed_part(
     notes = ' '.join(_data_notes(rec, []))
     assert "57 of the vehicle's 100 fixes (57 %) had lost the RTK solution" in notes
     assert 'SBAS, DGPS' not in notes
+    # a failure says it too (a seventy-second probe's honest float fixes, 58 % left out,
+    # left three passes, and the failure said the vehicle was never in view)
+    from radar_calib_ros.pipeline import _fix_grade_failure_note
+    failure = _fix_grade_failure_note(rec)
+    assert len(failure) == 1 and 'had lost the RTK solution' in failure[0]
+    few = _straight_fixes([1 if k < 5 else 2 for k in range(100)]).build()
+    assert few.counters['fixes_degraded_dropped'] == 5 and not _fix_grade_failure_note(few)
 
 
 @pytest.mark.parametrize('components', [(), ('vx', 'vy')])
