@@ -99,9 +99,9 @@ from radar_calib_ros.core.refine_covariance import (
     _yaw_rate_shift, _yaw_step_between_passes, along_boresight_share, start_error_m)
 from radar_calib_ros.core.refine_diagnostics import _diagnostics
 from radar_calib_ros.core.refine_model import (
-    _START_SIGMA_M, ClockDrift, _anchor, _change, _Fit, _Model, _parameter_sigma, _priors,
-    _road_up, _robust, _rotation_between, _Selected, _solve, _vehicle_poses, n_range_terms,
-    range_columns, reflection_height_prior)
+    _START_SIGMA_M, ClockDrift, _anchor, _change, _Fit, _Model, _parameter_sigma, _Poses,
+    _priors, _road_up, _robust, _rotation_between, _Selected, _solve, _Times, _vehicle_poses,
+    n_range_terms, range_columns, reflection_height_prior)
 from radar_calib_ros.core.refine_noise import (_azimuth_bias, _azimuth_noise_deg,
                                                _elevation_noise_deg, _noisy_azimuth,
                                                _noisy_elevation, _scatter)
@@ -507,28 +507,44 @@ def _rescan_along_boresight(refinement: Refinement, recording: Recording,
     candidates, track_ids, track_size = (candidates[unused], track_ids[unused],
                                          track_size[unused])
     times = times.subset(unused)
-    view = recording.radar_view()
     shifts = np.arange(-half, half + 1e-9, _RESCAN_STEP_M)
+    counts = _gate_counts_along(est, boresight, shifts, candidates, track_ids, track_size,
+                                times, recording, poses, config)
+    if counts.max() < max(_MIN_PASS_TARGETS, _RESCAN_MIN_SHARE * fitted.size):
+        return None
+    # the gate is a stretch as wide as the car and the gate: its centre, not its edge
+    shift = _stretch_centre(shifts, counts, 0.5)
+    return Extrinsics(est.rotation, est.translation_m + shift * boresight, est.time_offset_s)
+
+
+def _gate_counts_along(est: Extrinsics, direction: F64, shifts: F64, candidates: I64,
+                       track_ids: I64, track_size: I64, times: _Times, recording: Recording,
+                       poses: _Poses, config: CalibConfig) -> F64:
+    """(len(shifts),) targets among ``candidates`` that the gate takes in, within passes,
+    with the radar moved by each shift [m] along ``direction`` (unit, world)."""
+    view = recording.radar_view()
     counts = np.zeros(shifts.size)
     for i, shift in enumerate(shifts):
-        moved = Extrinsics(est.rotation, est.translation_m + shift * boresight,
+        moved = Extrinsics(est.rotation, est.translation_m + shift * direction,
                            est.time_offset_s)
         keep = _gate(moved, candidates, track_ids, track_size, np.zeros(0, np.int64), times,
                      recording, poses, config, first_round=False, view=view)
         if keep.any():
             keep[keep] = _in_passes(times.subset(keep).t_s, config.hypotheses.pass_gap_s)
         counts[i] = keep.sum()
+    return counts
+
+
+def _stretch_centre(shifts: F64, counts: F64, share: float) -> float:
+    """The count-weighted centre of the stretch of shifts around the most counted one
+    whose counts stay at ``share`` of the most or above."""
     best = int(np.argmax(counts))
-    if counts[best] < max(_MIN_PASS_TARGETS, _RESCAN_MIN_SHARE * fitted.size):
-        return None
-    # the gate is a stretch as wide as the car and the gate: its centre, not its edge
     lo = hi = best
-    while lo > 0 and counts[lo - 1] >= 0.5 * counts[best]:
+    while lo > 0 and counts[lo - 1] >= share * counts[best]:
         lo -= 1
-    while hi < shifts.size - 1 and counts[hi + 1] >= 0.5 * counts[best]:
+    while hi < shifts.size - 1 and counts[hi + 1] >= share * counts[best]:
         hi += 1
-    shift = float(np.average(shifts[lo:hi + 1], weights=counts[lo:hi + 1]))
-    return Extrinsics(est.rotation, est.translation_m + shift * boresight, est.time_offset_s)
+    return float(np.average(shifts[lo:hi + 1], weights=counts[lo:hi + 1]))
 
 
 def _rescan_better(other: Refinement, first: Refinement) -> bool:
@@ -585,28 +601,14 @@ def _rescan_along_the_road(refinement: Refinement, recording: Recording,
     axis = 0.5 * math.atan2(float(np.mean(np.sin(2.0 * yaw[on_box]))),
                             float(np.mean(np.cos(2.0 * yaw[on_box]))))
     along = np.array([math.cos(axis), math.sin(axis), 0.0])
-    view = recording.radar_view()
     half = _ROAD_SCAN_LENGTHS * config.vehicle.length
-    shifts = np.arange(-half, half + 1e-9, _ROAD_SCAN_STEP_M)
-    shifts = np.union1d(shifts, [0.0])
-    counts = np.zeros(shifts.size)
-    for i, shift in enumerate(shifts):
-        moved = Extrinsics(est.rotation, est.translation_m + shift * along, est.time_offset_s)
-        keep = _gate(moved, candidates, track_ids, track_size, np.zeros(0, np.int64), times,
-                     recording, poses, config, first_round=False, view=view)
-        if keep.any():
-            keep[keep] = _in_passes(times.subset(keep).t_s, config.hypotheses.pass_gap_s)
-        counts[i] = keep.sum()
-    best = int(np.argmax(counts))
+    shifts = np.union1d(np.arange(-half, half + 1e-9, _ROAD_SCAN_STEP_M), [0.0])
+    counts = _gate_counts_along(est, along, shifts, candidates, track_ids, track_size, times,
+                                recording, poses, config)
     here = float(counts[np.searchsorted(shifts, 0.0)])
-    if counts[best] < max(_MIN_PASS_TARGETS, _ROAD_SCAN_GAIN * here):
+    if counts.max() < max(_MIN_PASS_TARGETS, _ROAD_SCAN_GAIN * here):
         return None
-    lo = hi = best
-    while lo > 0 and counts[lo - 1] >= 0.9 * counts[best]:
-        lo -= 1
-    while hi < shifts.size - 1 and counts[hi + 1] >= 0.9 * counts[best]:
-        hi += 1
-    shift = float(np.average(shifts[lo:hi + 1], weights=counts[lo:hi + 1]))
+    shift = _stretch_centre(shifts, counts, 0.9)
     return Extrinsics(est.rotation, est.translation_m + shift * along, est.time_offset_s)
 
 
