@@ -1290,13 +1290,15 @@ def _data_notes(recording: Recording, corrections: list[str],
     if grid or abs(offset_cdeg) >= _HEADING_OFFSET_NOTE_CDEG:
         if grid:
             # a probe's, and two generators', yaw against the UTM grid's north was blamed on
-            # a turned INS: the offset is the site's meridian convergence
+            # a turned INS: the offset is the site's meridian convergence (a seventy-fourth
+            # probe's INS turned by 0.7-0.8 deg where that is 0.7 was told only the grid)
             notes.append(f'The Odometry heading is {offset_cdeg / 100:+.2f} deg off the '
                          'vehicle\'s course over ground throughout, the meridian convergence '
                          f'here ({abs(convergence):.2f} deg): its yaw is most likely against '
                          'the UTM grid\'s north rather than true north (REP-103\'s ENU, as the '
-                         'contract has it). It was taken off; have the INS driver give the yaw '
-                         'against true north.')
+                         'contract has it), or the INS is mounted turned by as much (the data '
+                         'cannot tell the two apart). It was taken off; have the INS driver '
+                         'give the yaw against true north, or check its yaw alignment.')
         else:
             notes.append(f'The Odometry heading is {offset_cdeg / 100:+.1f} deg off the '
                          'vehicle\'s course over ground throughout (an INS mounted turned, or '

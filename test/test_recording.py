@@ -1260,6 +1260,8 @@ def test_a_heading_offset_of_the_meridian_convergence_is_named_as_a_grid_heading
         notes = [n for n in _data_notes(rec, []) if 'Odometry heading is' in n]
         assert len(notes) == 1 and ('meridian convergence' in notes[0]) == grid, notes
         assert ('INS yaw alignment' in notes[0]) != grid
+        # an INS turned by the convergence reads the same: both are named
+        assert ('mounted turned by as much' in notes[0]) == grid
 
 
 def test_a_grid_heading_near_the_central_meridian_is_named_at_a_tenth_of_a_degree() -> None:
