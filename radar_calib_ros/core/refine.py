@@ -575,14 +575,14 @@ def _rescan_along_the_road(refinement: Refinement, recording: Recording,
     A long vehicle's strongest returns are its near face (the flat front of a bus or a box
     truck when it comes, its rear when it goes), up to half its length from the targets of
     its sides, wheels and underbody. A fit that puts the box over the one face keeps those
-    targets in its gate and leaves the others out, and its robust cost is as low as the
-    right one's: a seventieth probe's 9.5-12 m buses and trucks on straight roads were
-    placed 2-7 m along the road at exit 0, each fit keeping 1.1-2.2 times fewer of the
-    vehicle's targets than a fit started at the truth, at about the same cost per target
-    (0.98-1.03 times it, or far more). So the box is slid along the road (the mean axis of
-    the headings driven) by up to a vehicle length either way, and the gate's count, the
-    radial velocities matching the vehicle's, says where most of the vehicle lies; the
-    centre of the stretch at 90 % of the most is the new start.
+    targets in its gate and leaves the others out, at a robust cost per target no better
+    than the right one's: a seventieth probe's 9.5-12 m buses and trucks on straight roads
+    were placed 2-7 m along the road at exit 0, each fit keeping 1.1-2.2 times fewer of
+    the vehicle's targets than a fit started at the truth, whose cost per target was about
+    the same (0.93-1.03 times) or far lower (0.25-0.76 times). So the box is slid along
+    the road (the mean axis of the headings driven) by up to a vehicle length either way,
+    and the gate's count, the radial velocities matching the vehicle's, says where most of
+    the vehicle lies; the centre of the stretch at 90 % of the most is the new start.
     """
     est = refinement.extrinsics
     candidates = np.asarray(tracked.target_index, np.int64)
