@@ -1581,3 +1581,12 @@ def test_an_open_boresight_restarts_stage_7_at_the_fitted_clock(monkeypatch: Any
         assert pipeline._start_at_fitted_clock(refinement, selection, None, None, ground,
                                                config) is refinement
     assert seen == []
+
+
+def test_clutter_is_named_for_what_outnumbers_the_road_users() -> None:
+    """A few false alarms a frame beside a car that gives 2.5 targets (a fifty-fourth
+    probe's snow): the road users gave few targets. A rain burst of 34 a frame beside 5 on
+    the tracks (a seventy-third probe): the clutter is named, not the road users."""
+    assert pipeline._clutter_cause(2.5, 4.0) == 'road users gave the radar few targets'
+    assert pipeline._clutter_cause(4.8, 33.9).startswith("the radar's false alarms, rain")
+    assert pipeline._clutter_cause(8.0, 6.0).startswith("the radar's false alarms, rain")
