@@ -1091,7 +1091,12 @@ def _checked_orientation(t: F64, coarse: F64, measured: F64, positions: F64, yaw
         # straight stretches only where it matters: turning, a reference point ahead of the
         # rear axle moves off the car's heading (1-3 deg at the centre of a car in a
         # junction turn)
-        rate = _yaw_rate_over(t, yaw, _STRAIGHT_RATE_HALF_SPAN_S)
+        # the heading's change over +-0.5 s, not between samples: an INS heading with
+        # 0.1-0.2 deg of noise at 100 Hz turns by tens of degrees a second from one sample
+        # to the next, every sample read as turning and no straight stretch left (a
+        # seventy-second and a seventy-third probe's 0.3-1.0 deg heading biases were then
+        # judged over turns, from 1 deg, and went into the radar's yaw at 2.4-8.9 sigma)
+        rate = _finite_difference(t, np.unwrap(yaw), _STRAIGHT_RATE_HALF_SPAN_S)
         speed = np.hypot(coarse[moving, 0], coarse[moving, 1])
         turning = ((np.abs(rate[moving]) >= _STRAIGHT_RATE_RPS)
                    | (np.abs(rate[moving]) >= _STRAIGHT_CURVATURE_PER_M * speed))
@@ -1243,26 +1248,6 @@ _STRAIGHT_CURVATURE_PER_M = 1.0 / 200.0
 
 #: Half span [s] over which the yaw rate that tells straight from turning is taken.
 _STRAIGHT_RATE_HALF_SPAN_S = 0.5
-
-
-def _yaw_rate_over(t: F64, yaw: F64, half_span_s: float) -> F64:
-    """(n,) yaw rate [rad/s] at the samples ``t`` as the heading's change over
-    +-``half_span_s`` (less at the ends).
-
-    Why not the derivative between samples: an INS heading with 0.1-0.2 deg of noise at
-    100 Hz turns by tens of degrees a second from one sample to the next, every sample
-    read as turning and no straight stretch left; a seventy-second and a seventy-third
-    probe's 0.3-1.0 deg heading biases were then judged over turns (1 deg) and went into
-    the radar's yaw one to one (2.4-8.9 sigma), where straight stretches would have shown
-    them to a few hundredths of a degree."""
-    if t.size < 2:
-        return np.zeros_like(t)
-    unwrapped = np.unwrap(yaw)
-    lo = np.clip(t - half_span_s, t[0], t[-1])
-    hi = np.clip(t + half_span_s, t[0], t[-1])
-    span = hi - lo
-    change = np.interp(hi, t, unwrapped) - np.interp(lo, t, unwrapped)
-    return np.where(span > 0.0, change / np.where(span > 0.0, span, 1.0), 0.0)
 
 
 def _heading_bins(t_straight: F64, residual: F64) -> tuple[F64, F64]:
