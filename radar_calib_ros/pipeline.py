@@ -857,6 +857,15 @@ def _degraded_fixes_note(recording: Recording) -> str | None:
 _DEGRADED_FAILURE_SHARE = 0.1
 
 
+def _passes_lost_to_float(recording: Recording) -> bool:
+    """Whether RTK fixes were left out for a lost solution, ``_DEGRADED_FAILURE_SHARE`` of
+    them or more (``_degraded_fixes_note``)."""
+    counters = recording.counters
+    dropped = counters.get('fixes_degraded_dropped', 0)
+    return (recording.fix_grade == 'rtk' and dropped > 0
+            and dropped >= _DEGRADED_FAILURE_SHARE * counters.get('fixes', 0))
+
+
 def _fix_grade_failure_note(recording: Recording) -> list[str]:
     """For a failure: the vehicle's fixes are not RTK, named with their error, which moves
     every pass's track of the vehicle by that much (a probe's standalone-GNSS drive failed
@@ -864,12 +873,8 @@ def _fix_grade_failure_note(recording: Recording) -> list[str]:
     RTK fixes, a share of which were left out for a lost solution."""
     grade = recording.fix_grade
     if grade == 'rtk':
-        counters = recording.counters
-        degraded = _degraded_fixes_note(recording)
-        if degraded is None or (counters.get('fixes_degraded_dropped', 0)
-                                < _DEGRADED_FAILURE_SHARE * counters.get('fixes', 0)):
-            return []
-        return [degraded]
+        degraded = _degraded_fixes_note(recording) if _passes_lost_to_float(recording) else None
+        return [] if degraded is None else [degraded]
     if not recording.counters.get('fixes'):
         return []
     what = 'standalone GNSS (NavSatFix status 0)' if grade == 'standalone' else (
@@ -1817,7 +1822,7 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
     """
     if _clock_remedy_named(reason, _clock_notes(recording, config)):
         return None
-    if _fix_grade_failure_note(recording) and recording.fix_grade == 'rtk':
+    if _passes_lost_to_float(recording):
         # a share of the fixes left out for a lost RTK solution took the passes driven then
         # with them: that is said instead (``_fix_grade_failure_note``)
         return None
@@ -1845,31 +1850,28 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
         # car park: in view for 240 s, 33 808 of its targets, told 'never in the radar's
         # view' for what was two passes where three are needed); the stages' reason stands
         return None
+    no_follower = (f'No track follows the calibration vehicle on most of its passes: of the '
+                   f'{n_hyps} tracks that fit a stretch of its drive, none, taken for the '
+                   f'vehicle\'s, has tracks moving with it on more than {best.met} of the '
+                   f'{best.in_view} passes it then makes through the view.')
     if sparse_per_frame is not None and sparse_per_frame < _SPARSE_COMPANY_TARGETS:
         # With a target or two a road user a frame, each road user is one track: the
         # vehicle's own keep it no company however well the radar sees it (a seventy-first
         # probe's low-resolution radars on straight roads, 97-215 frames of the car a pass,
         # were told it was never in view).
-        return (f'No track follows the calibration vehicle on most of its passes: of the '
-                f'{n_hyps} tracks that fit a stretch of its drive, none, taken for the '
-                f'vehicle\'s, has tracks moving with it on more than {best.met} of the '
-                f'{best.in_view} passes it then makes through the view. With '
-                f'{sparse_per_frame:g} target{"" if sparse_per_frame == 1 else "s"} a road '
-                'user a frame, each is one track, which '
-                'keeps no company even where the radar sees it (or the vehicle was never in '
-                'the radar\'s view). In detail:')
+        return (f'{no_follower} With {sparse_per_frame:g} '
+                f'target{"" if sparse_per_frame == 1 else "s"} a road user a frame, each is '
+                'one track, which keeps no company even where the radar sees it (or the '
+                'vehicle was never in the radar\'s view). In detail:')
     travel = _frame_travel(recording)[0]
     if travel > _FRAME_TRAVEL_M:
         # A vehicle that drives metres between frames breaks into short tracks whose
         # hypotheses scatter, so it keeps no company even in view: a forty-fifth probe's
         # highway drive with no other road user at all (22 m/s at 10 Hz) was told its
         # tracks were other road users'. The note on its travel follows the reason.
-        return (f'No track follows the calibration vehicle on most of its passes: of the '
-                f'{n_hyps} tracks that fit a stretch of its drive, none, taken for the '
-                f'vehicle\'s, has tracks moving with it on more than {best.met} of the '
-                f'{best.in_view} passes it then makes through the view. At {travel:.1f} m '
-                'between radar frames its targets may have broken into tracks too short to '
-                'agree (or it was never in the radar\'s view). In detail:')
+        return (f'{no_follower} At {travel:.1f} m between radar frames its targets may have '
+                'broken into tracks too short to agree (or it was never in the radar\'s '
+                'view). In detail:')
     return (f'The calibration vehicle was most likely never in the radar\'s view: of the '
             f'{n_hyps} tracks that fit a stretch of its drive, '
             'none, taken for the vehicle\'s, has tracks moving with it (within '
