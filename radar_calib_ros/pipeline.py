@@ -1456,6 +1456,23 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'motion: an RTK fix lost for RTK float and regained, while '
                      f'{"the pose" if odometry else "the status and the"} covariance still '
                      f'said RTK fixed? {what[0].upper()}{what[1:]}. {fix}')
+    elif recording.counters.get('silent_float_by_noise'):
+        c = recording.counters
+        odometry = 'odometry_silent_float_dropped' in c
+        source, poses = ('Odometry positions', 'poses') if odometry else ('fixes', 'fixes')
+        total = c.get('odometry', 0) if odometry else fixes
+        dropped = c.get('odometry_silent_float_dropped' if odometry
+                        else 'fixes_silent_float_dropped', 0)
+        when = (f'between {c["fix_noisy_first_s"]} and {c["fix_noisy_last_s"]} s'
+                if c['fix_noisy_first_s'] != c['fix_noisy_last_s']
+                else f'at {c["fix_noisy_first_s"]} s')
+        notes.append(f'The vehicle\'s {source} scattered by centimetres more than elsewhere for '
+                     f'seconds at a time ({when}, {poses}\' time), across the travel and in '
+                     'height, while the status and covariance still said RTK fixed: RTK float? '
+                     f'{dropped} {poses} ({100 * dropped / max(total, 1):.0f} %) were taken as '
+                     'float and left out with the radar frames they would have placed. Have '
+                     'the GNSS driver report RTK float in the fixes\' covariance (decimetres) '
+                     'or as a status below GBAS_FIX (2), and check the correction link.')
     degraded = _degraded_fixes_note(recording)
     if degraded is not None:
         notes.append(degraded)

@@ -303,6 +303,9 @@ def build_vehicle_track(fix_stamps_ns: I64, fix_rows: F64, odometry: Sequence[Od
                      'fixes_silent_float_dropped'] = int(steps.dropped.sum())
             if steps.by_noise:
                 counters['silent_float_by_noise'] = 1
+                if not steps.times_s.size:
+                    counters['fix_noisy_first_s'] = int(t[steps.dropped][0])
+                    counters['fix_noisy_last_s'] = int(t[steps.dropped][-1])
             stamps, positions, yaw = stamps[keep], positions[keep], np.asarray(yaw)[keep]
             velocities, yaw_rate = velocities[keep], np.asarray(yaw_rate)[keep]
     if has_fixes and not odoms:
@@ -516,6 +519,13 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
     peak = ndimage.maximum_filter1d(size, 2 * k + 1, mode='constant') == size
     at = np.flatnonzero((size > limit) & peak)
     if at.size == 0:
+        # Float can begin and end where its wander is small, with no jump to find, and
+        # still scatter by decimetres in between (a seventy-second probe: 20 s stretches
+        # 10 cm noisy and 0.4 m wandering, reported as RTK fixed, tilted a radar by 3-5 deg
+        # through the vehicle's height, unflagged). Its noise alone tells it then.
+        noisy = _noisy_without_jumps(t, positions, k)
+        if noisy.any() and noisy.mean() <= _SILENT_FLOAT_MAX_SHARE:
+            return FixSteps(np.empty(0), np.empty(0), noisy, by_noise=True)
         return none
     times, sizes = mid[at], size[at]
     near = np.abs(t[:, None] - times[None, :]).min(axis=1) <= _FIX_STEP_MARGIN_S
@@ -541,6 +551,55 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
 
 #: Shortest run of windows no parabola fits taken as RTK float by its noise [s].
 _NOISY_FLOAT_MIN_S = 3.0
+
+
+#: Least scatter [m] of a window's fixes about their parabola, across the travel and in
+#: height, taken as RTK float by its noise where no jump was found (an RTK fix scatters by
+#: 1-2 cm horizontally and 2-3 cm in height; float by 5-30 cm), and in medians of the
+#: drive's windows (``_FIX_STEP_MISFIT_RATIO``).
+_NOISY_FLOAT_MIN_M = 0.06
+#: Least speed [m/s] at which a window's travel gives the direction across it.
+_NOISY_FLOAT_MOVING_MPS = 0.5
+#: Span [s] over which the windows' scatter is averaged.
+_NOISY_FLOAT_SMOOTH_S = 1.0
+
+
+def _noisy_without_jumps(t: F64, positions: F64, k: int) -> np.ndarray:
+    """(n,) the fixes in runs of ``_NOISY_FLOAT_MIN_S`` or more whose windows of ``k``
+    scatter about a parabola by ``_NOISY_FLOAT_MIN_M`` and ``_FIX_STEP_MISFIT_RATIO`` times
+    the drive's median.
+
+    Why across the travel and in height only: stamps a few milliseconds off scatter fixes
+    along the travel by speed times that (a thirty-third probe's 3-4 ms: 4-5 cm at 12 m/s,
+    more than the drive's median), and neither across it nor in height, where float is as
+    noisy as anywhere (more in height)."""
+    if positions.shape[1] < 3:
+        return np.zeros(t.size, bool)
+    tw = np.lib.stride_tricks.sliding_window_view(t, k)
+    t_mean = tw.mean(axis=1)
+    vw, design, coef = _window_quadratics(t, positions[:, :3], k, t_mean)
+    residual = vw - design @ coef
+    velocity = coef[:, 1, :2]
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    normal = velocity[:, ::-1] * np.array([-1.0, 1.0]) / np.maximum(speed, 1e-9)[:, None]
+    across = np.where((speed >= _NOISY_FLOAT_MOVING_MPS)[:, None],
+                      np.einsum('wkd,wd->wk', residual[..., :2], normal),
+                      np.hypot(residual[..., 0], residual[..., 1]) / math.sqrt(2.0))
+    interval = float(np.median(np.diff(t)))
+    # over a second of windows: one window's handful of fixes scatters by chance, and 10 cm
+    # float let a fifth of them fit, splitting its runs
+    spread = ndimage.uniform_filter1d(np.mean(across ** 2 + residual[..., 2] ** 2, axis=1),
+                                      max(1, round(_NOISY_FLOAT_SMOOTH_S / interval)),
+                                      mode='nearest')
+    misfit = np.sqrt(np.maximum(spread, 0.0))
+    whole = tw[:, -1] - tw[:, 0] <= 2.0 * k * interval
+    if not whole.any():
+        return np.zeros(t.size, bool)
+    limit = max(_NOISY_FLOAT_MIN_M, _FIX_STEP_MISFIT_RATIO * float(np.median(misfit[whole])))
+    noisy = _noisy_runs(t, tw, (misfit > limit) & whole, k)
+    # the second's average blurs a stretch's edges by half of it either way
+    margin = round(_FIX_STEP_MARGIN_S / interval)
+    return ndimage.binary_dilation(noisy, np.ones(2 * margin + 1, bool)) if noisy.any() else noisy
 
 
 def _noisy_runs(t: F64, tw: F64, unfit: np.ndarray, k: int) -> np.ndarray:

@@ -1768,6 +1768,37 @@ def test_noisy_silent_rtk_float_is_found_by_its_edges_and_its_noise(noise_m: flo
     assert len(notes) == 1 and 'as RTK float does, were taken as float' in notes[0], notes
 
 
+@pytest.mark.parametrize('with_odometry', [True, False])
+def test_noisy_silent_rtk_float_with_no_jump_is_found_by_its_noise(with_odometry: bool) -> None:
+    """RTK float that begins and ends where its wander is small, so that no jump shows, and
+    10 cm noisy in between (a seventy-second probe: 3-5 deg of tilt, unflagged): found by
+    its scatter across the travel, left out and named."""
+    from radar_calib_ros.pipeline import _data_notes
+
+    floats = [(30.0, 45.0, (0.0, 0.0)), (80.0, 100.0, (0.0, 0.0))]
+    rec = _weaving_fixes(150.0, floats, with_odometry, float_noise_m=0.1).build()
+    c = rec.counters
+    assert 'fix_jumps' not in c and c['silent_float_by_noise'] == 1
+    t = (rec.vehicle.stamps_ns - T0) / 1e9
+    for start, end, _ in floats:
+        assert not np.any((t > start + 0.5) & (t < end - 0.5))
+    assert 20 * 34.0 <= c['fixes_silent_float_dropped'] <= 20 * (35.0 + 4 * 1.0)
+    assert abs(c['fix_noisy_first_s'] - 30) <= 1 and abs(c['fix_noisy_last_s'] - 100) <= 1
+    notes = [n for n in _data_notes(rec, []) if 'RTK float?' in n]
+    when = f'between {c["fix_noisy_first_s"]} and {c["fix_noisy_last_s"]} s'
+    assert len(notes) == 1 and when in notes[0], notes
+    assert 'left out' in notes[0] and 'jump' not in notes[0]
+
+
+def test_fixes_noisy_throughout_are_kept() -> None:
+    """A receiver 8 cm noisy over the whole drive is what it is, not float among fixed
+    stretches: nothing is dropped for its noise."""
+    rec = _weaving_fixes(150.0, [(0.0, 150.0, (0.0, 0.0))], True, float_noise_m=0.08).build()
+    assert 'fixes_silent_float_dropped' not in rec.counters
+    assert 'silent_float_by_noise' not in rec.counters
+    assert rec.vehicle.stamps_ns.size == 3000
+
+
 def _slalom_fixes(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                      np.ndarray]:
     """150 s of a car weaving at 4-14 m/s: fix epochs at 20 Hz, a 1 kHz time axis, the path
