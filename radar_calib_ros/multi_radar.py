@@ -32,10 +32,12 @@ _LOG = logging.getLogger(__name__)
 
 #: File name of the combined parameters file in the output directory.
 COMBINED_FILE = 'all_radars.yaml'
-#: Keys of a calibration that describe the transform (the combined file holds only these).
+#: Keys of a calibration that describe the transform (the combined file holds these).
 TRANSFORM_KEYS = ('world_frame', 'radar_frame', 'epsg', 'translation', 'quaternion_xyzw',
                   'rpy_deg', 'latitude', 'longitude', 'altitude', 'boresight_azimuth_deg',
                   'stamp')
+#: Keys of a calibration's quality that the combined file holds too: the radar's clock.
+CLOCK_KEYS = ('time_offset_s', 'sync_time_offset_s')
 
 
 @dataclass(frozen=True)
@@ -297,10 +299,18 @@ def combined_parameters(calibrations: Mapping[str, Mapping[str, Any]]) -> dict[s
     parameter name ('/' made '_'); ``calibrations.<key>`` holds that radar's transform
     keys (parent ``world_frame``, child ``radar_frame`` as TF has it, ``translation``,
     ``quaternion_xyzw``, ...), as in a single result file without the quality figures
-    (those stay in the per-radar files).
+    (those stay in the per-radar files), and the radar's clock offset: ``time_offset_s``
+    (to add to its stamps, in total) and ``sync_time_offset_s`` (the part given as
+    ``sync.time_offset``). Each radar has a clock of its own, and a transform used at the
+    wrong time is off by the speed of what it places times that (a seventy-sixth probe's
+    0.15 s: its evaluation's r_i 68 -> 46 % with the combined file).
     """
-    entries = {_safe(frame): {k: cal[k] for k in TRANSFORM_KEYS if k in cal}
-               for frame, cal in calibrations.items()}
+    entries = {}
+    for frame, cal in calibrations.items():
+        entry = {k: cal[k] for k in TRANSFORM_KEYS if k in cal}
+        quality = cal.get('quality') or {}
+        entry.update({k: quality[k] for k in CLOCK_KEYS if k in quality})
+        entries[_safe(frame)] = entry
     return {'/**': {'ros__parameters': {'radar_frames': list(entries),
                                         'calibrations': entries}}}
 
