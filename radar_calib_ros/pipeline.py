@@ -474,10 +474,18 @@ def _in_line_note(in_line: quality.InLine, config: CalibConfig) -> str:
             'a gap of a second or more where the traffic allows.')
 
 
-def _outfitted_note(outfitted: tuple[float, int, float, float]) -> str:
+def _outfitted_note(outfitted: tuple[float, int, float, float], config: CalibConfig) -> str:
     distance, passes, share, other = outfitted
+    # A bus or a truck shows the radar a flat face at each end, tracked apart from the rest
+    # of it, and those tracks agree among themselves: a seventy-fifth probe's 12 m bus alone
+    # on its road (no company) was told a road user had kept pace, 5.3-5.4 m away.
+    length = config.vehicle.length
+    who = (f'most likely the vehicle\'s own front or rear ({length:g} m apart), tracked apart '
+           'from the rest of it, or a road user that kept pace with it'
+           if hypotheses.long_vehicle(config) and distance <= length else
+           'a road user that kept pace with the vehicle')
     return (f'Another group of tracks agreed across {passes} passes as well, placing the radar '
-            f'{distance:.1f} m from this result: a road user that kept pace with the vehicle '
+            f'{distance:.1f} m from this result: {who} '
             '(alongside it, or ahead or behind). Its targets filled the vehicle\'s box '
             f'(vehicle.*) {100 * other:.0f} % of the time, those taken {100 * share:.0f} %, so '
             'it was taken for another vehicle of another size. Check that vehicle.* describe '
@@ -2288,7 +2296,7 @@ def _stages_7_on(recording: Recording, config: CalibConfig, stage: _StageClock,
         _LOG.warning('%s', flip_note)
     corrections = [flip_note] if factor != 1.0 else []
     if selection.outfitted is not None:
-        corrections.append(_outfitted_note(selection.outfitted))
+        corrections.append(_outfitted_note(selection.outfitted, config))
     if retry_note:
         corrections.insert(0, retry_note)
     if clutter_note:

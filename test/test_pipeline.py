@@ -934,9 +934,18 @@ def test_company_and_a_set_aside_group_are_said_with_their_figures() -> None:
     pair = pipeline._company_reason(quality.Company(7, 8, np.array([-1.6, 3.1]), True))
     assert '7 of the vehicle\'s 8 drives' in pair and '3.5 m apart' in pair
     assert 'along 153-333 deg from grid north' in pair and 'between the two' in pair
-    note = pipeline._outfitted_note((5.2, 7, 0.71, 0.29))
+    note = pipeline._outfitted_note((5.2, 7, 0.71, 0.29), CalibConfig())
     assert 'across 7 passes' in note and '5.2 m from this result' in note
     assert '29 % of the time, those taken 71 %' in note
+    assert 'a road user that kept pace' in note and 'own front or rear' not in note
+    # a bus's own ends are tracks of their own: named first (a seventy-fifth probe's bus
+    # alone on its road was told a road user had kept pace)
+    bus = CalibConfig.from_mapping({'vehicle': {'length': 12.0, 'width': 2.55,
+                                                'height': 3.1, 'rear_overhang': 3.3}})
+    ends = pipeline._outfitted_note((5.3, 5, 0.8, 0.2), bus)
+    assert "the vehicle's own front or rear (12 m apart)" in ends
+    far = pipeline._outfitted_note((14.0, 5, 0.8, 0.2), bus)
+    assert 'own front or rear' not in far and 'a road user that kept pace' in far
 
 
 def test_two_groups_that_agree_as_one_on_another_clock_name_the_clock(
