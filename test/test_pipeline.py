@@ -1338,7 +1338,9 @@ def test_a_vehicle_that_moves_metres_between_frames_gets_a_wider_gate() -> None:
     assert pipeline.fast_vehicle_config(drive(14.0, 10.0), config) is None
     fitted, note = pipeline.fast_vehicle_config(drive(22.0, 10.0), config)
     assert fitted.cluster.accumulate_frames == 2 and fitted.associate.gate_m == 5.0
-    assert '2.2 m between radar frames (22 m/s at 10 Hz)' in note
+    assert ('2.2 m between radar frames (22 m/s at 10 Hz, over the fastest tenth of the '
+            'whole drive, ') in note
+    assert "in the radar's view or not)" in note
     fitted, _ = pipeline.fast_vehicle_config(drive(28.0, 10.0), config)
     assert fitted.associate.gate_m == 6.0
     wide = config.replaced({'associate.gate_m': 8.0, 'cluster.accumulate_frames': 1})
