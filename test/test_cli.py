@@ -124,6 +124,11 @@ def test_demo_end_to_end_against_ground_truth(tmp_path: Path,
     # the box it was made with, for evaluate on another recording
     assert set(estimate['quality']['vehicle']) == {'length', 'width', 'height',
                                                    'rear_overhang', 'ref_height'}
+    # and its passes' part of the uncertainty, which evaluate judges the tilt by
+    passes, sigma = estimate['quality']['sigma_passes'], estimate['quality']['sigma']
+    assert set(passes) == {'along_boresight_m', 'across_boresight_m', 'vertical_m',
+                           'roll_deg', 'pitch_deg', 'yaw_deg'}
+    assert 0.0 < passes['pitch_deg'] <= sigma['pitch_deg']
     assert errors['horizontal_m'] < 0.10
     assert errors['vertical_m'] < 0.20
     assert errors['rotation_deg'] < 0.3

@@ -302,6 +302,29 @@ def test_a_fit_that_moved_where_the_data_decide_is_run_again_from_there(
     assert started == ([first.extrinsics] if refitted else [])
 
 
+def test_the_tilt_is_judged_by_the_passes_part_of_the_stated_sigma_for_one_vehicle() -> None:
+    """The reflection models tilt two fits of one vehicle alike: a seventy-sixth probe's
+    1 deg pitch error 'held' against the stated 0.45-0.6 deg where the passes agreed to
+    0.04-0.1. With the same vehicle the roll and pitch are judged by the passes' part and
+    the model's tilt; the rest, and everything with another vehicle, by the stated."""
+    cal = {'quality': {
+        'sigma': {'along_boresight_m': 0.3, 'across_boresight_m': 0.1, 'vertical_m': 0.4,
+                  'rotation_deg': 0.8, 'roll_deg': 0.5, 'pitch_deg': 0.6, 'yaw_deg': 0.05},
+        'sigma_passes': {'along_boresight_m': 0.2, 'across_boresight_m': 0.05,
+                         'vertical_m': 0.02, 'roll_deg': 0.07, 'pitch_deg': 0.04,
+                         'yaw_deg': 0.03}}}
+    same = evaluate._stated_sigmas(cal, same_vehicle=True, model_tilt_deg=0.1)
+    assert same['roll_deg'] == pytest.approx(math.hypot(0.07, 0.1))
+    assert same['pitch_deg'] == pytest.approx(math.hypot(0.04, 0.1))
+    assert (same['along_m'], same['across_m'], same['vertical_m'], same['yaw_deg']) == (
+        0.3, 0.1, 0.4, 0.05)
+    other = evaluate._stated_sigmas(cal, same_vehicle=False, model_tilt_deg=0.1)
+    assert (other['roll_deg'], other['pitch_deg']) == (0.5, 0.6)
+    # a file without the passes' part (older results): the stated
+    del cal['quality']['sigma_passes']
+    assert evaluate._stated_sigmas(cal, same_vehicle=True, model_tilt_deg=0.1) == other
+
+
 def test_strict_exits_1_when_the_calibration_does_not_hold(
         drive: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     summary, _ = drive

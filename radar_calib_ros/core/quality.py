@@ -178,6 +178,12 @@ def assess_quality(extrinsics: Extrinsics, refinement: Refinement | None,
     if refinement is not None:
         extra['refinement_targets'] = int(refinement.n_targets)
         extra['refinement_passes'] = int(refinement.n_passes)
+        # (a 2-D radar's tilt is held level or at its mount in every fit: its passes agree
+        # on it by construction)
+        passes_sigma = (_passes_sigma(refinement, extrinsics.rotation)
+                        if recording.has_elevation else None)
+        if passes_sigma is not None:
+            extra['sigma_passes'] = passes_sigma
         if 'clock_drift_ppm' in refinement.diagnostics:
             extra['clock_drift_ppm'] = round(float(refinement.diagnostics['clock_drift_ppm']), 1)
         if 'clock_step_ms' in refinement.diagnostics:
@@ -280,6 +286,34 @@ def _time_offset_sigma_s(sigma: dict[str, float], refinement: Refinement | None,
     if held is not None:
         return float(held)
     return math.hypot(float(sigma['time_offset_s']), _CLOCK_MODEL_SIGMA_S)
+
+
+def _passes_sigma(refinement: Refinement, rotation: F64) -> dict[str, float] | None:
+    """The 1-sigma of the final fit's disagreement between passes and its start's own
+    error alone, without the terms of the models it rests on (the vehicle's reflection
+    heights and their change with range, the model's tilt), in ``quality.sigma``'s keys;
+    None where the fit has no such covariance.
+
+    Why: a second drive's fit with the same vehicle rests on those models alike, so they
+    do not part the two in roll and pitch, and ``evaluate`` judges the tilt's difference by
+    this (``evaluate._stated_sigmas``; a seventy-sixth probe's 1 deg pitch error 'held'
+    against the 0.45-0.6 deg the models give the pitch, where the passes agreed to
+    0.04-0.1)."""
+    d = refinement.diagnostics
+    if 'covariance_pass_scatter' not in d or 'tilt_held' in d or 'plane_sigma_deg' in d:
+        # (a tilt held at the road plane, or left to it, is as uncertain as that plane, not
+        # as the passes, which agree on it because it was held: our simulator's drive along
+        # one road, held 0.58 deg off, its passes' part 0.12 deg)
+        return None
+    s = uncertainty_from_covariance(
+        np.asarray(d['covariance_pass_scatter'], np.float64)
+        + np.asarray(d.get('covariance_start_term', np.zeros((7, 7))), np.float64), rotation)
+    keys = {'along': 'along_boresight_m', 'across': 'across_boresight_m',
+            'vertical': 'vertical_m', 'roll_deg': 'roll_deg', 'pitch_deg': 'pitch_deg',
+            'yaw_deg': 'yaw_deg'}
+    if not all(math.isfinite(s[k]) for k in keys):
+        return None
+    return {name: float(s[k]) for k, name in keys.items()}
 
 
 def uncertainty_from_covariance(covariance: F64, rotation: F64) -> dict[str, float]:

@@ -683,3 +683,32 @@ def test_rpy_sigmas_follow_the_result_angles() -> None:
     # looking straight down the roll and yaw are one: about the axes instead, not infinite
     down = Rotation.from_euler('xyz', [0.0, 89.9, 30.0], degrees=True).as_matrix()
     assert np.all(np.isfinite(quality.rpy_sigmas_deg(cov, down)))
+
+
+@pytest.mark.parametrize('held', [None, 'tilt_held', 'plane_sigma_deg'])
+def test_the_passes_part_of_the_uncertainty_is_given_only_where_the_passes_decide_the_tilt(
+        held: str | None) -> None:
+    """``quality.sigma_passes`` (what evaluate judges a second drive's tilt by) is the
+    passes' disagreement and the start's term, in the boresight's axes; not where the tilt
+    was held at the road plane or left to it: its passes agree on it because it was held
+    (our simulator's drive along one road: held 0.58 deg off, its passes' part 0.12)."""
+    scatter = np.diag([np.radians(0.05) ** 2, np.radians(0.08) ** 2, np.radians(0.02) ** 2,
+                       0.04, 0.01, 0.0009, 1e-6])
+    start = np.zeros((7, 7))
+    start[3, 3] = 0.05
+    diagnostics = {'covariance_pass_scatter': scatter, 'covariance_start_term': start}
+    if held is not None:
+        diagnostics[held] = 1.0
+    refinement = Refinement(Extrinsics(np.eye(3), np.zeros(3), 0.0), np.eye(7), 100, 5,
+                            diagnostics=diagnostics)
+    sigma = quality._passes_sigma(refinement, np.eye(3))
+    if held is not None:
+        assert sigma is None
+        return
+    assert sigma is not None
+    # the boresight along world x: roll about x, pitch about y, along x
+    assert sigma['roll_deg'] == pytest.approx(0.05) and sigma['pitch_deg'] == pytest.approx(0.08)
+    assert sigma['yaw_deg'] == pytest.approx(0.02)
+    assert sigma['along_boresight_m'] == pytest.approx(np.sqrt(0.09))
+    assert sigma['across_boresight_m'] == pytest.approx(0.1)
+    assert sigma['vertical_m'] == pytest.approx(0.03)
