@@ -622,7 +622,7 @@ def _refit_where_it_moved(fit: Refinement, calibration: Extrinsics, evaluation: 
     where the second fit fails).
 
     Why: the fit holds the horizontal position near its start by a prior (half a metre,
-    ``refine._START_SIGMA_M``) for where the drives leave it open, and started at a
+    ``refine_model._START_SIGMA_M``) for where the drives leave it open, and started at a
     calibration off by a metre it stops short (a seventy-sixth probe: 0.86 m of 1.0, 0.37
     of 0.5), with each pass's pull against that prior read as scatter between the passes:
     the 1-sigma it reported grew with the error under test (0.29, 0.43, 0.57 m for 0, 0.5

@@ -305,7 +305,7 @@ def combined_parameters(calibrations: Mapping[str, Mapping[str, Any]]) -> dict[s
     wrong time is off by the speed of what it places times that (a seventy-sixth probe's
     0.15 s: its evaluation's r_i 68 -> 46 % with the combined file).
     """
-    entries = {}
+    entries: dict[str, dict[str, Any]] = {}
     for frame, cal in calibrations.items():
         entry = {k: cal[k] for k in TRANSFORM_KEYS if k in cal}
         quality = cal.get('quality') or {}
