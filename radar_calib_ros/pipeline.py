@@ -1897,6 +1897,13 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
         return (f'{no_follower} At {travel:.1f} m between radar frames its targets may have '
                 'broken into tracks too short to agree (or it was never in the radar\'s '
                 'view). In detail:')
+    # Tracks that move with it on two passes are what chance gives (our simulator's vehicle
+    # far out of range: 2 of 213 tracks' calibrations), and what a vehicle seen on two
+    # passes only gives too (a seventy-sixth probe's radars, 2 900 of its targets on 2
+    # passes, were told only that it was never in view): both are said.
+    need = config.hypotheses.min_passes
+    seen = (f' (or it was seen on those {best.met} passes only, fewer than the {need} needed)'
+            if 2 <= best.met < need else '')
     return (f'The calibration vehicle was most likely never in the radar\'s view: of the '
             f'{n_hyps} tracks that fit a stretch of its drive, '
             'none, taken for the vehicle\'s, has tracks moving with it (within '
@@ -1904,9 +1911,9 @@ def _never_in_view_lead(reason: str, tracks: tuple[SmoothedTrack, ...], ground: 
             'passes it then makes through the area the radar\'s moving targets cover (up to '
             f'{best.reach_m:.0f} m from the radar): at best on {best.met} of {best.in_view}, '
             f'nor with the radar stamps shifted by up to +-{_NEVER_IN_VIEW_CLOCK_S:g} s. '
-            'They are other road users\'; drive the vehicle through the radar\'s view (or, '
-            'if it did drive there, the radar\'s clock is further off than that: check '
-            'sync.time_offset). In detail:')
+            f'They are other road users\'{seen}; drive the vehicle through the radar\'s view '
+            f'{need} times or more (or, if it did drive there, the radar\'s clock is further '
+            'off than that: check sync.time_offset). In detail:')
 
 
 def _clock_remedy_named(reason: str, notes: list[str]) -> bool:
