@@ -229,7 +229,10 @@ def _fake_radars(monkeypatch: pytest.MonkeyPatch, found: dict[str, str],
             return multi_radar.RadarOutcome(topic, frame_id, None, failing[frame_id], 1, ())
         cal = {k: frame_id if k == 'radar_frame' else k for k in TRANSFORM_KEYS}
         cal['quality'] = {}
-        return multi_radar.RadarOutcome(topic, frame_id, cal, None, 0, (f'summary {frame_id}',))
+        return multi_radar.RadarOutcome(topic, frame_id, cal, None, 0, (
+            f'summary {frame_id}', f'  advice: Drive across the view of {frame_id} again.',
+            '  advice: The vehicle\'s fixes name a GNSS antenna\'s frame, yet vehicle.'
+            'ref_height puts the point they describe at the axle.'))
 
     monkeypatch.setattr(multi_radar, 'calibrate_topic', fake_calibrate)
     monkeypatch.setattr(multi_radar, 'ProcessPoolExecutor', ThreadPoolExecutor)
@@ -258,6 +261,15 @@ def test_all_radars_prints_in_topic_order(monkeypatch: pytest.MonkeyPatch, tmp_p
     assert [b.split()[0] for b in blocks] == ['/a/points', '/b/points', '/c/points']
     summaries = [line for line in lines if line.startswith('summary')]
     assert summaries == ['summary radar_a', 'summary radar_b', 'summary radar_c']
+    # advice of the vehicle's, the same for every radar, is said in full once (a
+    # seventy-sixth probe's ran to 39 repeats); each radar's own is said in full
+    advice = [line for line in lines if line.startswith('  advice: ')]
+    assert [a for a in advice if 'Drive across the view of' in a] == [
+        f'  advice: Drive across the view of radar_{k} again.' for k in 'abc']
+    gnss = [a for a in advice if 'GNSS antenna' in a]
+    assert gnss[0].endswith('at the axle.') and gnss[1:] == [
+        "  advice: as for radar_a above (The vehicle's fixes name a GNSS antenna's frame, "
+        '...)'] * 2
     combined = yaml.safe_load((tmp_path / 'out' / 'all_radars.yaml').read_text())
     assert combined['/**']['ros__parameters']['radar_frames'] == ['radar_a', 'radar_b',
                                                                   'radar_c']
