@@ -267,44 +267,32 @@ def refine_extrinsics(initial: Extrinsics, recording: Recording, tracked: Tracke
         # the box, outside the gate: seen from a place it was never fitted at (see
         # ``_rescan_along_boresight``), it is fitted from there and kept where it agrees.
         rescan = _rescan_along_boresight(refinement, recording, tracked, config)
-        if rescan is not None:
-            try:
-                other = _checked(rescan, recording, tracked, selection, config,
-                                 ground_normal, None)
-            except InsufficientDataError:
-                other = None
-            if other is not None and _rescan_better(other, refinement):
-                _LOG.info('started again %.2f m along the boresight: %d passes (%d before), '
-                          'along-boresight sigma %.2f m (%.2f before)',
-                          float(np.linalg.norm(rescan.translation_m
-                                               - refinement.extrinsics.translation_m)),
-                          other.n_passes, refinement.n_passes,
-                          other.diagnostics['sigma_along_boresight_m'],
-                          refinement.diagnostics['sigma_along_boresight_m'])
-                other.diagnostics['rescan_shift_m'] = [
-                    float(v) for v in rescan.translation_m - refinement.extrinsics.translation_m]
-                initial, refinement = rescan, other
+        other = None if rescan is None else _kept_restart(
+            rescan, refinement, _rescan_better, 'rescan_shift_m', lambda start: _checked(
+                start, recording, tracked, selection, config, ground_normal, None))
+        if rescan is not None and other is not None:
+            _LOG.info('started again %.2f m along the boresight: %d passes (%d before), '
+                      'along-boresight sigma %.2f m (%.2f before)',
+                      float(np.linalg.norm(other.diagnostics['rescan_shift_m'])),
+                      other.n_passes, refinement.n_passes,
+                      other.diagnostics['sigma_along_boresight_m'],
+                      refinement.diagnostics['sigma_along_boresight_m'])
+            initial, refinement = rescan, other
         # A bus or a truck shows the radar its flat front when it comes and its rear when it
         # goes, metres from where its other targets lie: the fit can settle with the box
         # slid along the road, keeping the targets of one face and leaving the rest outside
         # the gate (see ``_rescan_along_the_road``).
-        if hypotheses.long_vehicle(config):
-            road = _rescan_along_the_road(refinement, recording, tracked, config)
-            if road is not None:
-                try:
-                    other = _checked(road, recording, tracked, selection, config,
-                                     ground_normal, None, start_sigma)
-                except InsufficientDataError:
-                    other = None
-                if other is not None and _road_refit_better(other, refinement):
-                    _LOG.info('started again %.2f m along the road: %d targets (%d before)',
-                              float(np.linalg.norm(road.translation_m
-                                                   - refinement.extrinsics.translation_m)),
-                              other.n_targets, refinement.n_targets)
-                    other.diagnostics['road_shift_m'] = [
-                        float(v) for v in road.translation_m
-                        - refinement.extrinsics.translation_m]
-                    initial, refinement = road, other
+        road = (_rescan_along_the_road(refinement, recording, tracked, config)
+                if hypotheses.long_vehicle(config) else None)
+        other = None if road is None else _kept_restart(
+            road, refinement, _road_refit_better, 'road_shift_m', lambda start: _checked(
+                start, recording, tracked, selection, config, ground_normal, None,
+                start_sigma))
+        if road is not None and other is not None:
+            _LOG.info('started again %.2f m along the road: %d targets (%d before)',
+                      float(np.linalg.norm(other.diagnostics['road_shift_m'])),
+                      other.n_targets, refinement.n_targets)
+            initial, refinement = road, other
         # The clock offset's start is scanned at the paper's stages' position, decimetres
         # to metres off along the road, and the offset that puts the most targets on the
         # box there makes up for that: along a road driven at one speed a clock offset and
@@ -545,6 +533,23 @@ def _stretch_centre(shifts: F64, counts: F64, share: float) -> float:
     while hi < shifts.size - 1 and counts[hi + 1] >= share * counts[best]:
         hi += 1
     return float(np.average(shifts[lo:hi + 1], weights=counts[lo:hi + 1]))
+
+
+def _kept_restart(start: Extrinsics, first: Refinement,
+                  better: Callable[[Refinement, Refinement], bool], shift_key: str,
+                  refit: Callable[[Extrinsics], Refinement]) -> Refinement | None:
+    """``refit`` from ``start`` where it succeeds and is ``better`` than ``first``, with
+    the start's shift from ``first``'s estimate [m] in its diagnostics under ``shift_key``;
+    else None (the rescans along the boresight and along the road)."""
+    try:
+        other = refit(start)
+    except InsufficientDataError:
+        return None
+    if not better(other, first):
+        return None
+    other.diagnostics[shift_key] = [
+        float(v) for v in start.translation_m - first.extrinsics.translation_m]
+    return other
 
 
 def _rescan_better(other: Refinement, first: Refinement) -> bool:
