@@ -542,7 +542,7 @@ def _judged_fit(evaluation: Evaluation, config: CalibConfig, stated: Mapping[str
         return Agreement('cannot tell', unfitted), {}, None
     fit = _refit_where_it_moved(fit, ext, evaluation, selection, config)
     d = fit.diagnostics
-    own = _own_covariance(fit)
+    own = quality.passes_covariance(fit)
     differences = _differences_in_calibration_axes(ext, fit.extrinsics)
     fit_sigmas = _fit_sigmas(own, ext)
     full_sigmas = _fit_sigmas(fit.covariance, ext)
@@ -605,14 +605,6 @@ def _judged_fit(evaluation: Evaluation, config: CalibConfig, stated: Mapping[str
 #: from where it went (``_refit_where_it_moved``).
 _REFIT_MOVED_M = 0.2
 _REFIT_SIGMAS = 2.0
-
-
-def _own_covariance(fit: Refinement) -> np.ndarray:
-    """(7, 7) a fit's scatter over passes without the priors it shares with the
-    calibration, plus what its start's own error adds (see ``_judged_fit``)."""
-    d = fit.diagnostics
-    return (np.asarray(d.get('covariance_pass_scatter', fit.covariance), np.float64)
-            + np.asarray(d.get('covariance_start_term', np.zeros((7, 7))), np.float64))
 
 
 def _refit_where_it_moved(fit: Refinement, calibration: Extrinsics, evaluation: Evaluation,

@@ -288,6 +288,15 @@ def _time_offset_sigma_s(sigma: dict[str, float], refinement: Refinement | None,
     return math.hypot(float(sigma['time_offset_s']), _CLOCK_MODEL_SIGMA_S)
 
 
+def passes_covariance(refinement: Refinement) -> F64:
+    """(7, 7) a fit's disagreement between passes, without the priors and model terms
+    (its whole covariance where it has no such part), plus what its start's own error adds
+    where the drives leave the position to it (``refine``'s diagnostics)."""
+    d = refinement.diagnostics
+    return (np.asarray(d.get('covariance_pass_scatter', refinement.covariance), np.float64)
+            + np.asarray(d.get('covariance_start_term', np.zeros((7, 7))), np.float64))
+
+
 def _passes_sigma(refinement: Refinement, rotation: F64) -> dict[str, float] | None:
     """The 1-sigma of the final fit's disagreement between passes and its start's own
     error alone, without the terms of the models it rests on (the vehicle's reflection
@@ -305,9 +314,7 @@ def _passes_sigma(refinement: Refinement, rotation: F64) -> dict[str, float] | N
         # as the passes, which agree on it because it was held: our simulator's drive along
         # one road, held 0.58 deg off, its passes' part 0.12 deg)
         return None
-    s = uncertainty_from_covariance(
-        np.asarray(d['covariance_pass_scatter'], np.float64)
-        + np.asarray(d.get('covariance_start_term', np.zeros((7, 7))), np.float64), rotation)
+    s = uncertainty_from_covariance(passes_covariance(refinement), rotation)
     keys = {'along': 'along_boresight_m', 'across': 'across_boresight_m',
             'vertical': 'vertical_m', 'roll_deg': 'roll_deg', 'pitch_deg': 'pitch_deg',
             'yaw_deg': 'yaw_deg'}
