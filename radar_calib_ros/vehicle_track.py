@@ -452,8 +452,7 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
         # the travel's direction in each window from the fixes themselves (their scatter
         # is along it); what is measured is what lies across it
         _, _, path = _window_quadratics(t, positions[:, :2], k, t_mean)
-        normal = path[:, 1, ::-1] * np.array([-1.0, 1.0])
-        normal /= np.maximum(np.hypot(normal[:, 0], normal[:, 1]), 1e-9)[:, None]
+        normal, _ = _across_travel(path[:, 1])
         misfit = np.sqrt(np.mean(np.einsum('wkd,wd->wk', qw - design @ coef, normal) ** 2,
                                  axis=1))
     # interval i (fixes i, i+1): the window ending at fix i against the one starting at i+1
@@ -482,6 +481,7 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
     # simulator's car stopping dead) bends the windows that straddle it, while either side
     # of a jump is smooth and at the same speed.
     span = 2.0 * k * interval
+    compact = tw[:, -1] - tw[:, 0] <= span
     fits = misfit <= max(_FIX_STEP_MISFIT_M, _FIX_STEP_MISFIT_RATIO * float(np.median(misfit)))
     # RTK float is noisier than the fix (5-10 cm), so the windows inside it fit no parabola
     # to the fixed stretches' standard, and its edges went unmeasured: a thirty-third
@@ -491,7 +491,7 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
     # misfits as the fixed ones' spread counts.
     noisy = misfit <= _FIX_STEP_NOISY_M
     edge = (fits[before] & noisy[after]) | (noisy[before] & fits[after])
-    whole = ((tw[before, -1] - tw[before, 0] <= span) & (tw[after, -1] - tw[after, 0] <= span)
+    whole = (compact[before] & compact[after]
              & (t[i + 1] - t[i] <= 3.0 * interval) & steady)
     clean = whole & fits[before] & fits[after]
     whole &= edge
@@ -523,7 +523,7 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
         # still scatter by decimetres in between (a seventy-second probe: 20 s stretches
         # 10 cm noisy and 0.4 m wandering, reported as RTK fixed, tilted a radar by 3-5 deg
         # through the vehicle's height, unflagged). Its noise alone tells it then.
-        noisy = _noisy_without_jumps(t, positions, k)
+        noisy = _noisy_without_jumps(t, tw, compact, positions, interval)
         if noisy.any() and noisy.mean() <= _SILENT_FLOAT_MAX_SHARE:
             return FixSteps(np.empty(0), np.empty(0), noisy, by_noise=True)
         return none
@@ -533,7 +533,7 @@ def _fix_steps(t: F64, positions: F64, twist: F64 | None,
     # are any, they are the float, not the alternation below (a jump missed at one end of
     # a 10 cm noisy stretch flipped it: the drive before it was dropped instead); a
     # receiver's float is noisy throughout or not at all.
-    noisy_float = _noisy_runs(t, tw, ~fits & (tw[:, -1] - tw[:, 0] <= span), k)
+    noisy_float = _noisy_runs(t, tw, ~fits & compact, k)
     # stretches between jumps, alternately fixed and float: the float ones the shorter share
     bounds = np.concatenate([[t[0]], times, [t[-1]]])
     lengths = np.diff(bounds)
@@ -564,42 +564,44 @@ _NOISY_FLOAT_MOVING_MPS = 0.5
 _NOISY_FLOAT_SMOOTH_S = 1.0
 
 
-def _noisy_without_jumps(t: F64, positions: F64, k: int) -> np.ndarray:
-    """(n,) the fixes in runs of ``_NOISY_FLOAT_MIN_S`` or more whose windows of ``k``
-    scatter about a parabola by ``_NOISY_FLOAT_MIN_M`` and ``_FIX_STEP_MISFIT_RATIO`` times
-    the drive's median.
+def _noisy_without_jumps(t: F64, tw: F64, compact: np.ndarray, positions: F64,
+                         interval: float) -> np.ndarray:
+    """(n,) the fixes in runs of ``_NOISY_FLOAT_MIN_S`` or more whose windows (``tw``, (w, k)
+    times; ``compact``: those spanning no gap, as ``_fix_steps`` takes them) scatter about
+    a parabola by ``_NOISY_FLOAT_MIN_M`` and ``_FIX_STEP_MISFIT_RATIO`` times the drive's
+    median; ``interval`` the fixes' [s].
 
     Why across the travel and in height only: stamps a few milliseconds off scatter fixes
     along the travel by speed times that (a thirty-third probe's 3-4 ms: 4-5 cm at 12 m/s,
     more than the drive's median), and neither across it nor in height, where float is as
     noisy as anywhere (more in height)."""
-    if positions.shape[1] < 3:
+    if positions.shape[1] < 3 or not compact.any():
         return np.zeros(t.size, bool)
-    tw = np.lib.stride_tricks.sliding_window_view(t, k)
-    t_mean = tw.mean(axis=1)
-    vw, design, coef = _window_quadratics(t, positions[:, :3], k, t_mean)
+    k = tw.shape[1]
+    vw, design, coef = _window_quadratics(t, positions[:, :3], k, tw.mean(axis=1))
     residual = vw - design @ coef
-    velocity = coef[:, 1, :2]
-    speed = np.hypot(velocity[:, 0], velocity[:, 1])
-    normal = velocity[:, ::-1] * np.array([-1.0, 1.0]) / np.maximum(speed, 1e-9)[:, None]
+    normal, speed = _across_travel(coef[:, 1, :2])
     across = np.where((speed >= _NOISY_FLOAT_MOVING_MPS)[:, None],
                       np.einsum('wkd,wd->wk', residual[..., :2], normal),
                       np.hypot(residual[..., 0], residual[..., 1]) / math.sqrt(2.0))
-    interval = float(np.median(np.diff(t)))
     # over a second of windows: one window's handful of fixes scatters by chance, and 10 cm
     # float let a fifth of them fit, splitting its runs
     spread = ndimage.uniform_filter1d(np.mean(across ** 2 + residual[..., 2] ** 2, axis=1),
                                       max(1, round(_NOISY_FLOAT_SMOOTH_S / interval)),
                                       mode='nearest')
     misfit = np.sqrt(np.maximum(spread, 0.0))
-    whole = tw[:, -1] - tw[:, 0] <= 2.0 * k * interval
-    if not whole.any():
-        return np.zeros(t.size, bool)
-    limit = max(_NOISY_FLOAT_MIN_M, _FIX_STEP_MISFIT_RATIO * float(np.median(misfit[whole])))
-    noisy = _noisy_runs(t, tw, (misfit > limit) & whole, k)
+    limit = max(_NOISY_FLOAT_MIN_M, _FIX_STEP_MISFIT_RATIO * float(np.median(misfit[compact])))
+    noisy = _noisy_runs(t, tw, (misfit > limit) & compact, k)
     # the second's average blurs a stretch's edges by half of it either way
     margin = round(_FIX_STEP_MARGIN_S / interval)
     return ndimage.binary_dilation(noisy, np.ones(2 * margin + 1, bool)) if noisy.any() else noisy
+
+
+def _across_travel(rate: F64) -> tuple[F64, F64]:
+    """((w, 2) unit horizontal normals to windows' travel, (w,) their speeds [m/s]) from
+    the rates (w, 2) of their parabolas (``_window_quadratics``)."""
+    speed = np.hypot(rate[:, 0], rate[:, 1])
+    return rate[:, ::-1] * np.array([-1.0, 1.0]) / np.maximum(speed, 1e-9)[:, None], speed
 
 
 def _noisy_runs(t: F64, tw: F64, unfit: np.ndarray, k: int) -> np.ndarray:
