@@ -1428,59 +1428,54 @@ def _data_notes(recording: Recording, corrections: list[str],
                      'along their path, up to a second either side (what is left adds '
                      'centimetres along the travel). Stamp the fixes with the receiver\'s time '
                      '(e.g. nmea_navsat_driver\'s use_GNSS_time) and calibrate again.')
-    jumps = recording.counters.get('fix_jumps', 0)
-    if jumps:
-        c = recording.counters
-        odometry = bool(c.get('fix_jumps_in_odometry'))
+    c = recording.counters
+    jumps = c.get('fix_jumps', 0)
+    if jumps or c.get('silent_float_by_noise'):
+        # silent RTK float, found by its jumps or by its noise alone (``_fix_steps``)
+        odometry = bool(c.get('fix_jumps_in_odometry')) or 'odometry_silent_float_dropped' in c
         source, pose, poses = (('Odometry positions', 'pose', 'poses') if odometry
                                else ('fixes', 'fix', 'fixes'))
         total = c.get('odometry', 0) if odometry else fixes
         dropped = c.get('odometry_silent_float_dropped' if odometry
                         else 'fixes_silent_float_dropped', 0)
-        sizes = (f'{c["fix_jump_median_cm"]}-{c["fix_jump_max_cm"]} cm'
-                 if c['fix_jump_median_cm'] != c['fix_jump_max_cm'] else
-                 f'{c["fix_jump_max_cm"]} cm')
-        when = (f'between {c["fix_jumps_first_s"]} and {c["fix_jumps_last_s"]} s'
-                if jumps > 1 else f'at {c["fix_jumps_first_s"]} s')
-        smooth = ('the Odometry\'s twist' if recording.counters.get('odometry', 0)
-                  and not recording.counters.get('odometry_twist_replaced') else 'its path')
-        which = ('where they scattered by centimetres more than elsewhere, as RTK float does'
-                 if c.get('silent_float_by_noise') else
-                 'between the jumps, the shorter share of the drive')
-        what = (f'{dropped} {poses} ({100 * dropped / max(total, 1):.0f} %) {which}, were '
-                'taken as float and left out with the radar frames they would have placed'
-                if dropped else
-                'which stretches are float is not clear (they would be much of the drive), so '
-                f'every {pose} was kept and the reported uncertainty takes half a jump as '
-                f'the {poses}\' error')
+        share = f'{dropped} {poses} ({100 * dropped / max(total, 1):.0f} %)'
+        said = f'{"the pose" if odometry else "the status and the"} covariance still said'
         fix = ('Have the INS report the GNSS solution it rests on (its pose covariance), and '
                'check the correction link.' if odometry else
                'Have the GNSS driver report RTK float in the fixes\' covariance (decimetres, '
                'not RTK fixed\'s centimetres) or as a status below GBAS_FIX (2; NavSatFix '
                'has no RTK float of its own, and drivers map it differently), and check the '
                'correction link.')
-        notes.append(f'The vehicle\'s {source} jump {jumps} time{"s" if jumps > 1 else ""} '
-                     f'by {sizes} ({when}, {poses}\' time) where {smooth} shows smooth '
-                     'motion: an RTK fix lost for RTK float and regained, while '
-                     f'{"the pose" if odometry else "the status and the"} covariance still '
-                     f'said RTK fixed? {what[0].upper()}{what[1:]}. {fix}')
-    elif recording.counters.get('silent_float_by_noise'):
-        c = recording.counters
-        odometry = 'odometry_silent_float_dropped' in c
-        source, poses = ('Odometry positions', 'poses') if odometry else ('fixes', 'fixes')
-        total = c.get('odometry', 0) if odometry else fixes
-        dropped = c.get('odometry_silent_float_dropped' if odometry
-                        else 'fixes_silent_float_dropped', 0)
-        when = (f'between {c["fix_noisy_first_s"]} and {c["fix_noisy_last_s"]} s'
-                if c['fix_noisy_first_s'] != c['fix_noisy_last_s']
-                else f'at {c["fix_noisy_first_s"]} s')
-        notes.append(f'The vehicle\'s {source} scattered by centimetres more than elsewhere for '
-                     f'seconds at a time ({when}, {poses}\' time), across the travel and in '
-                     'height, while the status and covariance still said RTK fixed: RTK float? '
-                     f'{dropped} {poses} ({100 * dropped / max(total, 1):.0f} %) were taken as '
-                     'float and left out with the radar frames they would have placed. Have '
-                     'the GNSS driver report RTK float in the fixes\' covariance (decimetres) '
-                     'or as a status below GBAS_FIX (2), and check the correction link.')
+        if jumps:
+            sizes = (f'{c["fix_jump_median_cm"]}-{c["fix_jump_max_cm"]} cm'
+                     if c['fix_jump_median_cm'] != c['fix_jump_max_cm'] else
+                     f'{c["fix_jump_max_cm"]} cm')
+            when = (f'between {c["fix_jumps_first_s"]} and {c["fix_jumps_last_s"]} s'
+                    if jumps > 1 else f'at {c["fix_jumps_first_s"]} s')
+            smooth = ('the Odometry\'s twist' if c.get('odometry', 0)
+                      and not c.get('odometry_twist_replaced') else 'its path')
+            which = ('where they scattered by centimetres more than elsewhere, as RTK float does'
+                     if c.get('silent_float_by_noise') else
+                     'between the jumps, the shorter share of the drive')
+            what = (f'{share} {which}, were taken as float and left out with the radar frames '
+                    'they would have placed'
+                    if dropped else
+                    'which stretches are float is not clear (they would be much of the drive), so '
+                    f'every {pose} was kept and the reported uncertainty takes half a jump as '
+                    f'the {poses}\' error')
+            notes.append(f'The vehicle\'s {source} jump {jumps} time{"s" if jumps > 1 else ""} '
+                         f'by {sizes} ({when}, {poses}\' time) where {smooth} shows smooth '
+                         f'motion: an RTK fix lost for RTK float and regained, while {said} RTK '
+                         f'fixed? {what[0].upper()}{what[1:]}. {fix}')
+        else:
+            when = (f'between {c["fix_noisy_first_s"]} and {c["fix_noisy_last_s"]} s'
+                    if c['fix_noisy_first_s'] != c['fix_noisy_last_s']
+                    else f'at {c["fix_noisy_first_s"]} s')
+            notes.append(f'The vehicle\'s {source} scattered by centimetres more than '
+                         f'elsewhere for seconds at a time ({when}, {poses}\' time), across the '
+                         f'travel and in height, while {said} RTK fixed: RTK float? {share} were '
+                         'taken as float and left out with the radar frames they would have '
+                         f'placed. {fix}')
     degraded = _degraded_fixes_note(recording)
     if degraded is not None:
         notes.append(degraded)
